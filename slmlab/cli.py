@@ -1,0 +1,162 @@
+"""The command line (DATA_FORMAT.md): ``python -m slmlab VERB ...``.
+
+Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``bench``.
+Every error a user can cause ends with exit status 2 and one line on stderr; outputs are written
+atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SlmlabError
+
+EXIT_USER_ERROR = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr and exit status 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        self.exit(EXIT_USER_ERROR, f"slmlab: error: {message} (see 'python -m slmlab {self._verb()} --help')\n")
+
+    def _verb(self) -> str:
+        parts = self.prog.split()
+        return parts[-1] if len(parts) > 1 and parts[-1] != "slmlab" else ""
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m slmlab", description="Stereo light microscope vision modelling workbench.")
+    sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="write a simulated calibration set from the virtual CMO microscope")
+    s.add_argument("out_dir", type=Path)
+    s.add_argument("--preset", default="paper", help="virtual microscope preset (paper, leica, ideal)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--test", type=int, default=1, help="calibration test 1-5 of the paper's Table 3 (default 1)")
+    g.add_argument("--validation", action="store_true", help="the §6 validation run instead of a calibration test")
+
+    e = sub.add_parser("extract", help="find and index the dots in images/ and write points.csv")
+    e.add_argument("cal_dir", type=Path)
+
+    sub.add_parser("models", help="list the vision models")
+
+    c = sub.add_parser("calibrate", help="fit a vision model on a calibration set")
+    c.add_argument("cal_dir", type=Path)
+    c.add_argument("--model", default=None, help="model name (default: the most accurate)")
+    c.add_argument("--out", type=Path, required=True, help="model file to write (JSON)")
+
+    r = sub.add_parser("reconstruct", help="world coordinates of image points with a model file")
+    r.add_argument("model", type=Path)
+    r.add_argument("points", type=Path)
+    r.add_argument("--out", type=Path, required=True)
+
+    v = sub.add_parser("evaluate", help="residual elements, RA1-RA5 and S coefficients of a model on a set")
+    v.add_argument("model", type=Path)
+    v.add_argument("cal_dir", type=Path)
+    v.add_argument("--json", action="store_true")
+
+    b = sub.add_parser("bench", help="speed benchmarks beside the field's reference implementations")
+    b.add_argument("--json", action="store_true")
+    return p
+
+
+# ------------------------------------------------------------------------------------------------ verbs
+def _simulate(a) -> int:
+    from .io import write_set
+    from .simulate import paper_test, preset, simulate_set, validation_session
+
+    if a.images:
+        raise SlmlabError("image rendering (--images) is not implemented yet; it arrives with the extraction "
+                          "issue. Run without --images for points mode")
+    microscope = preset(a.preset)
+    session = validation_session() if a.validation else paper_test(a.test)
+    cal = simulate_set(microscope, session, seed=a.seed)
+    write_set(a.out_dir, cal)
+    n = cal.points[["wl1", "wr1"]].notna().all(axis=1).sum()
+    print(f"wrote {a.out_dir}: {len(cal.points)} rows ({n} seen in both views), "
+          f"sequences {', '.join(cal.sequences)}")
+    return 0
+
+
+def _extract(a) -> int:
+    raise SlmlabError("dot extraction from images/ is not implemented yet; it arrives with the extraction issue")
+
+
+def _models(a) -> int:
+    from .models import available_models
+
+    models = available_models()
+    if not models:
+        print("(no vision model is implemented yet: the paper's models arrive with §3-§5)")
+    for name, cls in models.items():
+        print(f"{name}\t{cls.summary}")
+    return 0
+
+
+def _calibrate(a) -> int:
+    from .io import read_set
+    from .models import calibrate
+
+    if not a.out.parent.exists():
+        raise SlmlabError(f"the folder {a.out.parent} does not exist; create it or choose another --out", a.out)
+    cal = read_set(a.cal_dir)
+    model = calibrate(cal, a.model)
+    model.save(a.out)
+    for note in cal.notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {a.out} (model {model.name})")
+    return 0
+
+
+def _reconstruct(a) -> int:
+    from .io import read_points, write_csv
+    from .models import load_model
+
+    model = load_model(a.model)
+    df = read_points(a.points)
+    w = df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    xyz = np.full((len(w), 3), np.nan)
+    ok = np.isfinite(w).all(axis=1)
+    xyz[ok] = model.reconstruct(w[ok])
+    for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
+        df[c] = xyz[:, k]
+    write_csv(a.out, df)
+    print(f"wrote {a.out}: {int(ok.sum())} of {len(w)} points reconstructed with {model.name}")
+    return 0
+
+
+def _evaluate(a) -> int:
+    from .io import read_set
+    from .models import load_model
+
+    load_model(a.model)
+    read_set(a.cal_dir)
+    raise SlmlabError("evaluation (residual elements, RA1-RA5, S coefficients) is not implemented yet; "
+                      "it arrives with the §5-§6 issue")
+
+
+def _bench(a) -> int:
+    from .bench import run
+
+    return run(as_json=a.json)
+
+
+VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibrate": _calibrate,
+         "reconstruct": _reconstruct, "evaluate": _evaluate, "bench": _bench}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; return the exit status (0 success, 2 user error)."""
+    args = _parser().parse_args(argv)
+    try:
+        return VERBS[args.verb](args)
+    except SlmlabError as exc:
+        print(f"slmlab: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_USER_ERROR

@@ -1,0 +1,370 @@
+"""Reading and writing slmlab's interchange format (``../shared/DATA_FORMAT.md``): calibration sets, point
+tables, and atomic writes.
+
+A calibration set is a folder with ``points.csv`` (one row per sequence, stage position and grid point),
+``meta.json`` (format version, image size, plates), optionally ``images/`` and, for simulated sets,
+``truth.csv``. Everything a user can get wrong raises :class:`slmlab.SlmlabError` naming the file, the
+row or column, and the remedy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+
+__all__ = [
+    "SET_FORMAT",
+    "KEY_COLUMNS",
+    "STAGE_COLUMNS",
+    "IMAGE_COLUMNS",
+    "POINT_COLUMNS",
+    "CalibrationSet",
+    "read_set",
+    "write_set",
+    "read_points",
+    "write_csv",
+    "atomic_write_text",
+    "atomic_write_bytes",
+]
+
+SET_FORMAT = "slmlab-calibration/1"
+KEY_COLUMNS = ["sequence", "position", "row", "col"]
+STAGE_COLUMNS = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
+IMAGE_COLUMNS = ["wl1", "wl2", "wr1", "wr2"]
+POINT_COLUMNS = ["sequence", "position", *STAGE_COLUMNS, "row", "col", *IMAGE_COLUMNS]
+TRUTH_COLUMNS = [*KEY_COLUMNS, *IMAGE_COLUMNS, "X_mm", "Y_mm", "Z_mm"]
+FLOAT_FORMAT = "%.10g"
+
+
+@dataclass
+class CalibrationSet:
+    """A calibration set in memory.
+
+    Attributes
+    ----------
+    points
+        one row per (sequence, position, grid point) with the columns of ``POINT_COLUMNS`` (image
+        coordinates NaN where a dot was not found) [px, mm].
+    meta
+        the content of ``meta.json``.
+    truth
+        for simulated sets: noise-free image coordinates and true stage-frame coordinates, else ``None``.
+    path
+        the folder it was read from, if any.
+    notes
+        what was dropped or repaired while reading, one sentence each (shown to the user).
+    """
+
+    points: pd.DataFrame
+    meta: dict
+    truth: pd.DataFrame | None = None
+    path: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+    # -------------------------------------------------------------- convenience views
+    @property
+    def image_size_px(self) -> tuple[int, int]:
+        w, h = self.meta["image_size_px"]
+        return int(w), int(h)
+
+    @property
+    def sequences(self) -> list[str]:
+        """Sequence labels in order of first appearance."""
+        return list(dict.fromkeys(self.points["sequence"]))
+
+    def sequence(self, name: str) -> pd.DataFrame:
+        """The rows of one sequence (an empty frame if absent)."""
+        return self.points[self.points["sequence"] == name]
+
+    def plate(self, sequence: str) -> dict:
+        """The plate description (rows, cols, pitch_mm, dot_diameter_mm) of a sequence."""
+        return self.meta["plates"]["grid" if sequence == "grid" else "moving"]
+
+    def image_coordinates(self, sequence: str | None = None) -> np.ndarray:
+        """``(n, 4)`` array ``wl1, wl2, wr1, wr2`` [px] of one sequence (or all rows)."""
+        df = self.points if sequence is None else self.sequence(sequence)
+        return df[IMAGE_COLUMNS].to_numpy(float)
+
+    def summary(self) -> dict:
+        """A short JSON-able description (for model files)."""
+        seq = {s: int(self.sequence(s)["position"].nunique()) for s in self.sequences}
+        return {
+            "path": None if self.path is None else str(self.path),
+            "source": self.meta.get("source", ""),
+            "image_size_px": list(self.image_size_px),
+            "positions": seq,
+            "rows": int(len(self.points)),
+            "rows_with_all_coordinates": int(self.points[IMAGE_COLUMNS].notna().all(axis=1).sum()),
+        }
+
+
+# ---------------------------------------------------------------------------------------- atomic writes
+def _check_parent(path: Path) -> None:
+    parent = path.parent
+    if not parent.exists():
+        raise SlmlabError(f"the folder {parent} does not exist; create it or choose another output path", path)
+    if path.exists() and path.is_dir():
+        raise SlmlabError("is a folder; give a file name for the output", path)
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename.
+
+    A failed or interrupted write never leaves a partial file nor replaces a good one.
+    """
+    path = Path(path)
+    _check_parent(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write UTF-8 ``text`` atomically (see :func:`atomic_write_bytes`)."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_csv(path: str | os.PathLike, df: pd.DataFrame) -> None:
+    """Write a table as CSV atomically, floats with 10 significant digits, ``\\n`` line ends."""
+    atomic_write_text(path, df.to_csv(index=False, float_format=FLOAT_FORMAT, lineterminator="\n"))
+
+
+def json_text(obj) -> str:
+    """Stable JSON text: sorted keys, two-space indent, trailing newline."""
+    return json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- reading CSV
+def _read_csv_text(path: Path, what: str) -> pd.DataFrame:
+    """Read a CSV file as strings, turning every way it can be unreadable into a SlmlabError."""
+    if not path.exists():
+        raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see DATA_FORMAT.md)", path)
+    if path.is_dir():
+        raise SlmlabError(f"is a folder, but {what} must be a CSV file", path)
+    raw = path.read_bytes()
+    if not raw.strip():
+        raise SlmlabError(f"{what} is empty; it needs a header row and at least one data row", path)
+    if b"\x00" in raw[:4096]:
+        raise SlmlabError(f"{what} is a binary file, not CSV text; export the points as comma-separated text", path)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise SlmlabError(f"{what} is not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV", path) from None
+    try:
+        from io import StringIO
+
+        df = pd.read_csv(StringIO(text), dtype=str, keep_default_na=False, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise SlmlabError(f"{what} is not valid CSV ({msg}); check the delimiter (commas) and quoting", path) from None
+    df.columns = [str(c).strip() for c in df.columns]
+    if len(df) == 0:
+        raise SlmlabError(f"{what} has a header but no data rows; add at least one row", path)
+    return df
+
+
+def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integer: bool = False,
+             minimum: float | None = None) -> np.ndarray:
+    """Parse one text column as numbers; name the first bad row (file line) and the column."""
+    text = df[col].astype(str).str.strip()
+    empty = text.eq("") | text.str.lower().isin(["nan", "na", "null", "none"])
+    vals = pd.to_numeric(text.where(~empty, None), errors="coerce").to_numpy(float)
+    bad = ~empty & np.isnan(vals)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is not a number; fix or remove the row", path)
+    if empty.any() and not allow_empty:
+        k = int(np.flatnonzero(empty.to_numpy())[0])
+        raise SlmlabError(f"row {k + 2}, column {col}: missing or NaN value; every row needs a finite {col}", path)
+    nonfinite = ~empty.to_numpy() & ~np.isfinite(vals)
+    if nonfinite.any():
+        k = int(np.flatnonzero(nonfinite)[0])
+        raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is not finite; use a finite number"
+                          + (" or leave it empty" if allow_empty else ""), path)
+    if integer:
+        frac = ~np.isnan(vals) & (vals != np.round(vals))
+        if frac.any():
+            k = int(np.flatnonzero(frac)[0])
+            raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is not a whole number", path)
+    if minimum is not None:
+        low = ~np.isnan(vals) & (vals < minimum)
+        if low.any():
+            k = int(np.flatnonzero(low)[0])
+            raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is below {minimum:g}; indices start at 1", path)
+    return vals
+
+
+def _require_columns(df: pd.DataFrame, cols: list[str], path: Path, what: str) -> None:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise SlmlabError(f"{what} lacks column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
+                          f"the header must name {', '.join(cols)}", path)
+
+
+def read_points(path: str | os.PathLike) -> pd.DataFrame:
+    """Read a table of points to reconstruct: any CSV with columns ``wl1, wl2, wr1, wr2`` [px].
+
+    Other columns pass through unchanged (as text). Empty image coordinates become NaN.
+    """
+    path = Path(path)
+    df = _read_csv_text(path, "the points file")
+    _require_columns(df, IMAGE_COLUMNS, path, "the points file")
+    for c in IMAGE_COLUMNS:
+        df[c] = _numeric(df, c, path, allow_empty=True)
+    return df
+
+
+# ---------------------------------------------------------------------------------------- sets
+def _read_meta(path: Path) -> dict:
+    if not path.exists():
+        raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see DATA_FORMAT.md)", path)
+    if path.is_dir():
+        raise SlmlabError("is a folder, but meta.json must be a JSON file", path)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise SlmlabError("is not UTF-8 text; meta.json must be JSON", path) from None
+    except json.JSONDecodeError as exc:
+        raise SlmlabError(f"invalid JSON at line {exc.lineno}, column {exc.colno} ({exc.msg}); fix the file", path) from None
+    if not isinstance(meta, dict):
+        raise SlmlabError("must hold a JSON object with format, image_size_px and plates", path)
+    fmt = meta.get("format")
+    if fmt != SET_FORMAT:
+        raise SlmlabError(f"format is {fmt!r}, this slmlab reads {SET_FORMAT!r}; convert the set or upgrade slmlab", path)
+    size = meta.get("image_size_px")
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and float(v).is_integer()
+                       for v in size)):
+        raise SlmlabError("image_size_px must be [width, height] in whole pixels, e.g. [2048, 2048]", path)
+    plates = meta.get("plates")
+    if not isinstance(plates, dict) or not plates:
+        raise SlmlabError("plates must describe the 'grid' and/or 'moving' plate (rows, cols, pitch_mm, dot_diameter_mm)", path)
+    for name, plate in plates.items():
+        if not isinstance(plate, dict):
+            raise SlmlabError(f"plates.{name} must be an object with rows, cols, pitch_mm, dot_diameter_mm", path)
+        for key, integer in (("rows", True), ("cols", True), ("pitch_mm", False), ("dot_diameter_mm", False)):
+            v = plate.get(key)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            if ok and integer:
+                ok = float(v).is_integer()
+            if not ok:
+                raise SlmlabError(f"plates.{name}.{key} must be a positive {'whole number' if integer else 'number'}", path)
+    return meta
+
+
+def read_set(path: str | os.PathLike) -> CalibrationSet:
+    """Read a calibration set folder (``points.csv``, ``meta.json``, optional ``truth.csv``).
+
+    Validates the format (DATA_FORMAT.md) and raises :class:`SlmlabError` on anything malformed. Exact
+    duplicate rows are dropped and reported in ``notes``; duplicates that disagree are an error.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise SlmlabError("calibration set folder not found; give the folder that holds points.csv and meta.json", path)
+    if not path.is_dir():
+        raise SlmlabError("is a file; give the calibration set's folder (with points.csv and meta.json)", path)
+    meta = _read_meta(path / "meta.json")
+    pfile = path / "points.csv"
+    df = _read_csv_text(pfile, "points.csv")
+    _require_columns(df, POINT_COLUMNS, pfile, "points.csv")
+    notes: list[str] = []
+    out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
+    if (out["sequence"] == "").any():
+        k = int(np.flatnonzero(out["sequence"].to_numpy() == "")[0])
+        raise SlmlabError(f"row {k + 2}, column sequence: empty label; use grid, X, Y, Z or another name", pfile)
+    out["position"] = _numeric(df, "position", pfile, allow_empty=False, integer=True, minimum=1).astype(int)
+    for c in STAGE_COLUMNS:
+        out[c] = _numeric(df, c, pfile, allow_empty=False)
+    for c in ("row", "col"):
+        out[c] = _numeric(df, c, pfile, allow_empty=False, integer=True, minimum=1).astype(int)
+    for c in IMAGE_COLUMNS:
+        out[c] = _numeric(df, c, pfile, allow_empty=True)
+    extra = [c for c in df.columns if c not in POINT_COLUMNS]
+    for c in extra:
+        out[c] = df[c]
+
+    # plates and plate indices
+    plates = meta["plates"]
+    for is_grid, name in ((True, "grid"), (False, "moving")):
+        rows = out[(out["sequence"] == "grid") == is_grid]
+        if rows.empty:
+            continue
+        if name not in plates:
+            raise SlmlabError(f"sequence{'s' if not is_grid else ''} {'grid' if is_grid else 'other than grid'} "
+                              f"need plates.{name} in meta.json", path / "meta.json")
+        for c, lim in (("row", plates[name]["rows"]), ("col", plates[name]["cols"])):
+            bad = rows[c] > lim
+            if bad.any():
+                k = int(rows.index[bad.to_numpy()][0])
+                raise SlmlabError(f"row {k + 2}, column {c}: {rows[c][k]} is outside the {name} plate "
+                                  f"({plates[name]['rows']} × {plates[name]['cols']}); fix the index or meta.json", pfile)
+
+    # duplicates
+    key = out[KEY_COLUMNS]
+    dup = key.duplicated(keep=False)
+    if dup.any():
+        groups = out[dup].groupby(KEY_COLUMNS, sort=False)
+        for _, g in groups:
+            vals = g[STAGE_COLUMNS + IMAGE_COLUMNS].to_numpy(float)
+            same = np.all((vals == vals[0]) | (np.isnan(vals) & np.isnan(vals[0])))
+            if not same:
+                k = int(g.index[1])
+                raise SlmlabError(f"row {k + 2}: duplicates row {int(g.index[0]) + 2} (same sequence, position, row, col) "
+                                  "with different values; keep one of them", pfile)
+        n = int(key.duplicated().sum())
+        out = out[~key.duplicated()].reset_index(drop=True)
+        notes.append(f"{n} exact duplicate row{'s' if n > 1 else ''} dropped from points.csv")
+
+    # one stage position per (sequence, position)
+    spread = out.groupby(["sequence", "position"], sort=False)[STAGE_COLUMNS].agg(lambda v: v.max() - v.min())
+    bad = spread.max(axis=1) > 1e-9
+    if bad.any():
+        s, p = bad.index[bad.to_numpy()][0]
+        raise SlmlabError(f"sequence {s}, position {p}: rows disagree on the stage position; "
+                          "every row of one position must carry the same stage_x_mm, stage_y_mm, stage_z_mm", pfile)
+
+    truth = None
+    tfile = path / "truth.csv"
+    if tfile.exists():
+        tdf = _read_csv_text(tfile, "truth.csv")
+        _require_columns(tdf, TRUTH_COLUMNS, tfile, "truth.csv")
+        truth = pd.DataFrame({"sequence": tdf["sequence"].astype(str).str.strip()})
+        for c in ("position", "row", "col"):
+            truth[c] = _numeric(tdf, c, tfile, allow_empty=False, integer=True, minimum=1).astype(int)
+        for c in TRUTH_COLUMNS[4:]:
+            truth[c] = _numeric(tdf, c, tfile, allow_empty=False)
+    return CalibrationSet(points=out, meta=meta, truth=truth, path=path, notes=notes)
+
+
+def write_set(path: str | os.PathLike, cal: CalibrationSet) -> Path:
+    """Write a calibration set folder (created if missing; its parent must exist). Files are atomic."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise SlmlabError("exists and is a file; give a folder for the calibration set", path)
+    if not path.parent.exists():
+        raise SlmlabError(f"the folder {path.parent} does not exist; create it first", path)
+    path.mkdir(exist_ok=True)
+    write_csv(path / "points.csv", cal.points[POINT_COLUMNS + [c for c in cal.points.columns if c not in POINT_COLUMNS]])
+    if cal.truth is not None:
+        write_csv(path / "truth.csv", cal.truth[TRUTH_COLUMNS])
+    atomic_write_text(path / "meta.json", json_text(cal.meta))
+    return path

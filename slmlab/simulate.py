@@ -1,0 +1,351 @@
+"""Presets of the virtual CMO microscope and simulated calibration sessions (METHOD.md §0, §6, §7).
+
+A *session* is what the paper images: one stereo pair of the large 27 × 29 plate (the ``grid`` sequence,
+§3) and the 7 × 7 plate carried by the stage in equal steps along X, Y and Z (§4–§6). The five calibration
+tests of Table 3 and the validation run of §6 are sessions.
+
+The ``paper`` preset, and why each value
+---------------------------------------
+Image and scale (§0)
+    2048 × 2048 px at 3 µm/px: the 27 × 29 plate (5.6 × 5.2 mm) fills the view, and the fitted parabolas'
+    vertices (Table 1: ``-b/2a`` ≈ 902 px in ``w2``; Table 2: ``-bD/2aD`` ≈ 941 px in ``w1``) put the
+    objective axis at about (941, 902) px.
+Convergence (§0, Table 4)
+    ``EZ = 0.0125 mm/px`` with 3 µm/px means a disparity of 1/(0.0125) = 80 px per mm of depth, i.e.
+    ``2 tan(γ/2) = 0.003/0.0125``: ``γ = 13.69°``.
+Perspective distance
+    The paper's Model 2 keeps ``E_Z,X`` and ``E_Z,Y`` within ±7.5 µm for 95 % of samples (Fig 16) over a
+    2.25 mm Z travel with dots up to 0.9 mm off axis. Perspective adds ``x ΔZ / L`` there, which a linear
+    model cannot absorb, so ``L ≳ 0.9 · 2.25 / 0.0075 ≈ 270 mm``: we take ``L = 300 mm`` (0.33 % per mm).
+    The ``leica`` preset uses the −1.6 %/mm measured on a real Leica CMO microscope (``L = 62.5 mm``).
+Distortion (Table 1, Table 2)
+    Column bend ``a ≈ ±1.65e-6 /px`` (opposite signs) and disparity curvature ``aD = 6.54e-6 /px`` fix the
+    ``y²`` and ``x²`` coefficients of ``Δw1``: ``(p1 + s1)/m = 1.65e-6`` and ``2 (3 p1 + s1)/m = 6.54e-6``,
+    hence decentring ``p1 = 2.7e-4 /mm`` and thin prism ``s1 = 2.8e-4 /mm`` (``m = 333.3 px/mm``), with the
+    right view's signs reversed. The row fan that follows, ``λ = 2 p1 / m = 1.62e-6 /px``, matches the
+    left view's ``λ = 1.61e-6`` of Table 1. The right view's ``λ = −9.96e-6`` is six times larger with the same
+    column bend: no single cause of METHOD.md §7 produces it without also changing ``a`` and ``aD``; we keep
+    the symmetric physics and report the difference. A small radial term (0.3 px at the corners) is common
+    to both sub-systems.
+Cameras (Table 2)
+    ``α = −0.1443°``: the cameras are rotated by −0.072° and +0.072°. ``δw2 = 2.07 px``: the right principal
+    point sits 2.07 px higher. The right magnification is 0.1 % larger (a linear disparity trend along X).
+Stage (Table 4)
+    ``θX = 3.03°`` is the stage X axis at −3.03° from the image rows. To first order ``KYX = −y_skew``,
+    ``KYZ = −y_tilt``, ``KZX = −z_tilt_x``, ``KZY = −z_tilt_y`` (see :class:`slmlab.microscope.Stage`), so the
+    Table 4 values give ``y_skew = 0.0051``, ``y_tilt = 0.0214``, ``z_tilt_x = 0.0057``, ``z_tilt_y = 0.0143``.
+    Scale errors of 1e-4, a 0.3 µm periodic lead error (1 mm lead), 0.3 µm straightness and 0.3 µm
+    positioning noise are typical of a good micrometre stage (METHOD.md §7: 0.1–2 µm).
+Dot finder
+    0.02 px in focus rising to 0.05 px at the edge of the ±1.13 mm depth of field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+
+from . import __version__
+from .errors import SlmlabError
+from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, CalibrationSet
+from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
+
+__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response",
+           "stage_origin"]
+
+# --------------------------------------------------------------------------------------------- presets
+_P1 = 2.7e-4  # decentring [1/mm]
+_S1 = 2.8e-4  # thin prism [1/mm]
+_K1 = 3.3e-5  # radial [1/mm²]: 0.3 px at r = 3 mm
+
+
+def _paper() -> Microscope:
+    return Microscope(
+        optics=Optics(
+            perspective_distance_mm=300.0,
+            convergence_deg=13.69,
+            pixel_mm=0.003,
+            image_size_px=(2048, 2048),
+            depth_of_field_mm=1.13,
+            inverted=True,
+            left=View(decentring_per_mm=_P1, thin_prism_per_mm=_S1, radial_k1_per_mm2=_K1,
+                      magnification_ratio=1.0, rotation_deg=-0.0722, principal_point_px=(941.0, 902.0)),
+            right=View(decentring_per_mm=-_P1, thin_prism_per_mm=-_S1, radial_k1_per_mm2=_K1,
+                       magnification_ratio=1.001, rotation_deg=0.0721, principal_point_px=(946.0, 899.93)),
+        ),
+        stage=Stage(
+            rotation_deg=-3.03, y_skew=0.0051, y_tilt=0.0214, z_tilt_x=0.0057, z_tilt_y=0.0143, x_tilt=0.0003,
+            scale_error=(1.0e-4, -0.8e-4, 1.5e-4), straightness_um=(0.3, 0.3, 0.3),
+            lead_error_um=0.3, lead_mm=1.0, lead_phase_deg=(10.0, 130.0, 250.0),
+            positioning_noise_um=0.3, travel_mm=4.0,
+        ),
+        noise=CentroidNoise(in_focus_px=0.02, at_dof_edge_px=0.05),
+        grid_plate=Plate(27, 29, 0.2, 0.1, fabrication_tolerance_um=0.25, rotation_deg=0.15),
+        moving_plate=Plate(7, 7, 0.3, 0.15, fabrication_tolerance_um=0.25, rotation_deg=-2.8, tilt_deg=0.05),
+        preset="paper",
+    )
+
+
+def _leica() -> Microscope:
+    m = _paper()
+    return replace(m, optics=replace(m.optics, perspective_distance_mm=62.5), preset="leica")
+
+
+def _ideal() -> Microscope:
+    """No distortion, (almost) no perspective, a perfect stage aligned with the image, no noise."""
+    m = _paper()
+    optics = Optics(perspective_distance_mm=1e9, convergence_deg=13.69, pixel_mm=0.003,
+                    image_size_px=(2048, 2048), depth_of_field_mm=1.13, inverted=True,
+                    left=View(principal_point_px=(1024.0, 1024.0)), right=View(principal_point_px=(1024.0, 1024.0)))
+    return replace(m, optics=optics, stage=Stage(), noise=CentroidNoise(0.0, 0.0),
+                   grid_plate=replace(m.grid_plate, fabrication_tolerance_um=0.0, rotation_deg=0.0),
+                   moving_plate=replace(m.moving_plate, fabrication_tolerance_um=0.0, rotation_deg=0.0, tilt_deg=0.0),
+                   preset="ideal")
+
+
+PRESETS = {
+    "paper": (_paper, "optics and stage chosen so that the paper's method lands near its Tables 1, 2 and 4"),
+    "leica": (_leica, "the paper preset with the strong perspective of a real Leica CMO (-1.6 %/mm, L = 62.5 mm)"),
+    "ideal": (_ideal, "no distortion, no perspective, a perfect stage aligned with the image, noise-free centres"),
+}
+
+
+def preset(name: str = "paper", **changes) -> Microscope:
+    """The virtual microscope of a named preset, optionally with top-level parts replaced.
+
+    >>> m = preset("paper")
+    >>> m.optics.convergence_deg
+    13.69
+    """
+    if name not in PRESETS:
+        raise SlmlabError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    m = PRESETS[name][0]()
+    return replace(m, **changes) if changes else m
+
+
+# --------------------------------------------------------------------------------------------- sessions
+@dataclass(frozen=True)
+class Session:
+    """What a calibration session images (paper §6, Table 3).
+
+    Attributes
+    ----------
+    step_mm
+        the stage step ``sd`` of the axis sequences [mm]: one value for all three, or ``(X, Y, Z)``.
+    positions
+        number of positions ``(NUMX, NUMY, NUMZ)`` of the X, Y, Z sequences.
+    grid
+        whether the static pair of the 27 × 29 plate (the ``grid`` sequence) is included.
+    name
+        a label for reports.
+    """
+
+    step_mm: float | tuple[float, float, float] = 0.1
+    positions: tuple[int, int, int] = (42, 30, 32)
+    grid: bool = True
+    name: str = "test1"
+
+    @property
+    def steps_mm(self) -> np.ndarray:
+        """The step of the X, Y and Z sequences [mm]."""
+        return np.broadcast_to(np.asarray(self.step_mm, dtype=float), (3,)).copy()
+
+    def centre_mm(self) -> np.ndarray:
+        """Stage position ``(X, Y, Z)`` at the middle of the three sequences [mm]; it is placed at the
+        centre of the field, in focus."""
+        span = (np.asarray(self.positions) - 1) * self.steps_mm
+        return np.array([-1.0, 1.0, -1.0]) * span / 2
+
+    def stage_positions(self) -> dict[str, np.ndarray]:
+        """Commanded stage positions ``(n, 3)`` [mm] of each sequence.
+
+        X runs from 0 to ``-(NUMX-1)·sd``, Y from 0 to ``+(NUMY-1)·sd``, Z from 0 to ``-(NUMZ-1)·sd``
+        (METHOD.md §6: X in [−4.1, 0], Y in [0, 2.9], Z in [−2.25, 0]); the other two coordinates sit at the
+        middle of their ranges.
+        """
+        c = self.centre_mm()
+        out = {}
+        if self.grid:
+            out["grid"] = c[None, :]
+        for axis, (n, sign) in enumerate(zip(self.positions, (-1.0, 1.0, -1.0))):
+            s = np.repeat(c[None, :], n, axis=0)
+            s[:, axis] = sign * self.steps_mm[axis] * np.arange(n)
+            out["XYZ"[axis]] = s
+        return out
+
+
+#: Table 3: step sd [mm] and (NUMX, NUMY, NUMZ) of the five calibration tests.
+PAPER_TESTS = {
+    1: (0.1, (42, 30, 32)),
+    2: (0.2, (21, 15, 16)),
+    3: (0.3, (14, 10, 11)),
+    4: (0.4, (9, 8, 8)),
+    5: (0.5, (9, 7, 7)),
+}
+
+
+def paper_test(k: int) -> Session:
+    """Calibration test ``k`` (1–5) of the paper's Table 3."""
+    if k not in PAPER_TESTS:
+        raise SlmlabError(f"the paper has calibration tests 1 to 5, not {k}")
+    step, n = PAPER_TESTS[k]
+    return Session(step_mm=step, positions=n, grid=True, name=f"test{k}")
+
+
+def validation_session() -> Session:
+    """The validation run of §6 at Test 1's conditions: X in [−4.1, 0], Y in [0, 2.9], Z in [−2.25, 0] mm.
+
+    The paper gives the ranges, not the steps. X and Y take Test 1's 0.1 mm (42 and 30 positions); 2.25 mm is
+    not a multiple of 0.1 mm, so Z takes 0.075 mm (31 positions, close to Test 1's 32).
+    """
+    return Session(step_mm=(0.1, 0.1, 0.075), positions=(42, 30, 31), grid=False, name="validation")
+
+
+def stage_origin(microscope: Microscope, session: Session) -> np.ndarray:
+    """Microscope-frame position of stage zero [mm], chosen so that the session's centre stage position
+    (:meth:`Session.centre_mm`) puts the plate centre at the middle of the image, in focus."""
+    o = microscope.optics
+    width, height = o.image_size_px
+    m = 1.0 / o.pixel_mm * (-1.0 if o.inverted else 1.0)
+    pp = (np.asarray(o.left.principal_point_px) + np.asarray(o.right.principal_point_px)) / 2
+    field_centre = np.array([((width - 1) / 2 - pp[0]) / m, ((height - 1) / 2 - pp[1]) / m, 0.0])
+    return field_centre - microscope.stage.axes @ session.centre_mm()
+
+
+# --------------------------------------------------------------------------------------------- simulation
+def simulate_set(microscope: Microscope | None = None, session: Session | None = None, seed: int = 0) -> CalibrationSet:
+    """Simulate a calibration set: the session's stage positions, the plates' dots seen in both views.
+
+    Parameters
+    ----------
+    microscope
+        the virtual microscope (default: the ``paper`` preset).
+    session
+        what to image (default: Test 1 of Table 3 with the grid pair).
+    seed
+        seed of every random draw (plate fabrication, stage positioning, centroid noise): the same seed gives
+        byte-identical files.
+
+    Returns
+    -------
+    CalibrationSet
+        ``points`` with noisy centres (NaN where a dot is not wholly inside an image), ``truth`` with the
+        noise-free centres and true stage-frame coordinates, and ``meta`` (with the simulator's parameters
+        under ``"simulator"``).
+    """
+    microscope = microscope if microscope is not None else preset("paper")
+    session = session if session is not None else paper_test(1)
+    plate_rng, stage_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    origin = stage_origin(microscope, session)
+    o = microscope.optics
+
+    # fabricated plates: nominal dot positions plus a uniform error within the tolerance
+    plates = {}
+    for name, plate in (("grid", microscope.grid_plate), ("moving", microscope.moving_plate)):
+        i, j, pts = plate.nominal_points()
+        tol = 1e-3 * plate.fabrication_tolerance_um
+        pts = pts + np.column_stack([plate_rng.uniform(-tol, tol, (len(pts), 2)), np.zeros(len(pts))])
+        plates[name] = (plate, i, j, pts @ plate.orientation().T)
+
+    frames, truths = [], []
+    for seq, commanded in session.stage_positions().items():
+        plate, i, j, offsets = plates["grid" if seq == "grid" else "moving"]
+        actual = microscope.stage.actual(commanded, stage_rng)
+        centre = microscope.stage_to_microscope(actual, origin)  # plate centre per position
+        n_pos, n_dot = len(commanded), len(i)
+        p = (centre[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+        w_true = microscope.project(p)
+        sigma = microscope.noise.sigma_px(p[:, 2], o.depth_of_field_mm)
+        w = w_true + noise_rng.normal(size=w_true.shape) * sigma[:, None]
+        vis = microscope.visible(w_true, plate.dot_diameter_mm)
+        w[:, 0:2][~vis[:, 0]] = np.nan
+        w[:, 2:4][~vis[:, 1]] = np.nan
+        key = {
+            "sequence": np.full(n_pos * n_dot, seq),
+            "position": np.repeat(np.arange(1, n_pos + 1), n_dot),
+        }
+        stage_cols = np.repeat(commanded, n_dot, axis=0)
+        frames.append(pd.DataFrame({
+            **key,
+            "stage_x_mm": stage_cols[:, 0], "stage_y_mm": stage_cols[:, 1], "stage_z_mm": stage_cols[:, 2],
+            "row": np.tile(i, n_pos), "col": np.tile(j, n_pos),
+            **{c: w[:, k] for k, c in enumerate(IMAGE_COLUMNS)},
+        }))
+        world = microscope.microscope_to_stage(p, origin)
+        truths.append(pd.DataFrame({
+            **key, "row": np.tile(i, n_pos), "col": np.tile(j, n_pos),
+            **{c: w_true[:, k] for k, c in enumerate(IMAGE_COLUMNS)},
+            "X_mm": world[:, 0], "Y_mm": world[:, 1], "Z_mm": world[:, 2],
+        }))
+    points = pd.concat(frames, ignore_index=True)[POINT_COLUMNS]
+    truth = pd.concat(truths, ignore_index=True)[TRUTH_COLUMNS]
+    meta = {
+        "format": SET_FORMAT,
+        "image_size_px": list(o.image_size_px),
+        "plates": {"grid": microscope.grid_plate.as_meta(), "moving": microscope.moving_plate.as_meta()},
+        "source": f"slmlab {__version__} virtual CMO microscope, preset {microscope.preset}, "
+                  f"session {session.name}, seed {seed}",
+        "simulator": {
+            "microscope": microscope.as_dict(),
+            "session": {"name": session.name, "step_mm": [float(v) for v in session.steps_mm], "positions": list(session.positions),
+                        "grid": session.grid},
+            "seed": int(seed),
+            "stage_origin_mm": [float(v) for v in origin],
+        },
+    }
+    return CalibrationSet(points=points, meta=meta, truth=truth)
+
+
+# --------------------------------------------------------------------------------------------- reports
+def describe(microscope: Microscope) -> pd.DataFrame:
+    """What the microscope's parameters imply, with units: the quantities the paper estimates (θX, EX, EZ,
+    K terms to first order), the perspective and the noise floor of METHOD.md §7."""
+    o, st, nz = microscope.optics, microscope.stage, microscope.noise
+    t = np.tan(np.radians(o.convergence_deg) / 2)
+    rows = [
+        ("object pixel", 1e3 * o.pixel_mm, "µm/px", "optics.pixel_mm"),
+        ("image size", f"{o.image_size_px[0]} × {o.image_size_px[1]}", "px", "optics.image_size_px"),
+        ("convergence γ", o.convergence_deg, "degree", "optics.convergence_deg"),
+        ("perspective distance L", o.perspective_distance_mm, "mm", "optics.perspective_distance_mm"),
+        ("magnification change with depth", 100.0 / o.perspective_distance_mm, "%/mm", "1/L"),
+        ("disparity per mm of depth", 2 * t / o.pixel_mm, "px/mm", "2 tan(γ/2) / pixel"),
+        ("EZ (nominal)", o.pixel_mm / (2 * t), "mm/px", "pixel / (2 tan(γ/2))"),
+        ("EX, EY (nominal)", -o.pixel_mm if o.inverted else o.pixel_mm, "mm/px", "inverted image"),
+        ("θX (nominal)", -st.rotation_deg, "degree", "-stage.rotation_deg"),
+        ("KYX ≈ -y_skew", -st.y_skew, "-", "stage.y_skew"),
+        ("KYZ ≈ -y_tilt", -st.y_tilt, "-", "stage.y_tilt"),
+        ("KZX ≈ -z_tilt_x", -st.z_tilt_x, "-", "stage.z_tilt_x"),
+        ("KZY ≈ -z_tilt_y", -st.z_tilt_y, "-", "stage.z_tilt_y"),
+        ("depth of field", f"±{o.depth_of_field_mm:g}", "mm", "optics.depth_of_field_mm"),
+        ("centroid noise in focus", nz.in_focus_px, "px", "noise.in_focus_px"),
+        ("noise floor σX in focus", 1e3 * o.pixel_mm * nz.in_focus_px / np.sqrt(2), "µm", "pixel·σc/√2"),
+        ("noise floor σZ in focus", 1e3 * o.pixel_mm / (2 * t) * np.sqrt(2) * nz.in_focus_px, "µm", "EZ·√2·σc"),
+        ("stage positioning noise", st.positioning_noise_um, "µm", "stage.positioning_noise_um"),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "value", "unit", "from"])
+
+
+def depth_response(microscope: Microscope, z_mm: np.ndarray, *, x_mm: float = 0.0, y_mm: float = 0.0,
+                   baseline_mm: float = 1.0) -> pd.DataFrame:
+    """Disparity and magnification of each view against depth, measured by projecting points.
+
+    For each height ``z`` a point at ``(x, y, z)`` and one ``baseline_mm`` further along x are projected.
+
+    Returns
+    -------
+    DataFrame
+        ``z_mm``, ``disparity_px`` (``w1_r − w1_l`` of the first point), ``magnification_l_px_per_mm``,
+        ``magnification_r_px_per_mm`` (image length of the baseline divided by its length).
+    """
+    z = np.asarray(z_mm, dtype=float)
+    a = np.column_stack([np.full_like(z, x_mm), np.full_like(z, y_mm), z])
+    b = a + [baseline_mm, 0.0, 0.0]
+    wa, wb = microscope.project(a), microscope.project(b)
+    return pd.DataFrame({
+        "z_mm": z,
+        "disparity_px": wa[:, 2] - wa[:, 0],
+        "magnification_l_px_per_mm": np.hypot(*(wb[:, 0:2] - wa[:, 0:2]).T) / baseline_mm,
+        "magnification_r_px_per_mm": np.hypot(*(wb[:, 2:4] - wa[:, 2:4]).T) / baseline_mm,
+    })

@@ -1,0 +1,155 @@
+"""The interchange format's reader: every malformed input is one SlmlabError naming the place."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+import slmlab
+from slmlab.io import atomic_write_text
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "slmlab", *args], capture_output=True, text=True, timeout=120)
+
+
+def rewrite_points(set_dir, edit):
+    f = set_dir / "points.csv"
+    lines = f.read_text().splitlines()
+    lines = edit(lines)
+    f.write_text("\n".join(lines) + "\n")
+
+
+def expect_error(set_dir, *fragments):
+    with pytest.raises(slmlab.SlmlabError) as exc:
+        slmlab.read_set(set_dir)
+    msg = str(exc.value)
+    for frag in fragments:
+        assert frag in msg, msg
+    return msg
+
+
+def test_missing_folder_and_files(tmp_path, set_dir):
+    expect_error(tmp_path / "nope", "not found")
+    (set_dir / "meta.json").unlink()
+    expect_error(set_dir, "meta.json not found")
+
+
+def test_file_given_for_folder(set_dir):
+    expect_error(set_dir / "points.csv", "is a file")
+
+
+def test_empty_and_header_only(set_dir):
+    f = set_dir / "points.csv"
+    header = f.read_text().splitlines()[0]
+    f.write_text("")
+    expect_error(set_dir, "empty")
+    f.write_text(header + "\n")
+    expect_error(set_dir, "no data rows")
+
+
+def test_non_numeric_value_names_row_and_column(set_dir):
+    def edit(lines):
+        cells = lines[5].split(",")
+        cells[7] = "abc"  # wl1
+        lines[5] = ",".join(cells)
+        return lines
+    rewrite_points(set_dir, edit)
+    expect_error(set_dir, "row 6", "column wl1", "not a number")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", ""])
+def test_non_finite_stage_value(set_dir, value):
+    def edit(lines):
+        cells = lines[3].split(",")
+        cells[2] = value  # stage_x_mm
+        lines[3] = ",".join(cells)
+        return lines
+    rewrite_points(set_dir, edit)
+    expect_error(set_dir, "row 4", "stage_x_mm")
+
+
+def test_missing_column(set_dir):
+    rewrite_points(set_dir, lambda lines: [line.rsplit(",", 1)[0] for line in lines])
+    expect_error(set_dir, "lacks column", "wr2")
+
+
+def test_binary_file_where_csv_expected(set_dir):
+    (set_dir / "points.csv").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00")
+    expect_error(set_dir, "binary")
+
+
+def test_invalid_and_unknown_meta(set_dir):
+    meta = set_dir / "meta.json"
+    good = json.loads(meta.read_text())
+    meta.write_text("{not json")
+    expect_error(set_dir, "invalid JSON")
+    meta.write_text(json.dumps({**good, "format": "slmlab-calibration/9"}))
+    expect_error(set_dir, "slmlab-calibration/9", "slmlab-calibration/1")
+    meta.write_text(json.dumps({**good, "image_size_px": [2048]}))
+    expect_error(set_dir, "image_size_px")
+
+
+def test_disagreeing_duplicates_are_an_error_identical_ones_a_note(set_dir):
+    rewrite_points(set_dir, lambda lines: lines + [lines[10]])
+    cal = slmlab.read_set(set_dir)
+    assert cal.notes and "duplicate" in cal.notes[0]
+
+    def edit(lines):
+        cells = lines[10].split(",")
+        cells[7] = str(float(cells[7]) + 1) if cells[7] else "1"
+        return lines + [",".join(cells)]
+    rewrite_points(set_dir, lambda lines: lines[:-1])
+    rewrite_points(set_dir, edit)
+    expect_error(set_dir, "duplicates row 11")
+
+
+def test_plate_index_outside_the_plate(set_dir):
+    def edit(lines):
+        # the last line is a Z-sequence dot of the 7 x 7 plate
+        cells = lines[-1].split(",")
+        cells[5] = "8"
+        lines[-1] = ",".join(cells)
+        return lines
+    rewrite_points(set_dir, edit)
+    expect_error(set_dir, "column row", "outside the moving plate")
+
+
+def test_cli_bad_input_is_exit_2_and_one_line(tmp_path, set_dir):
+    (set_dir / "meta.json").write_text("[]")
+    r = run_cli("calibrate", str(set_dir), "--out", str(tmp_path / "m.json"))
+    assert r.returncode == 2
+    assert r.stderr.startswith("slmlab: error: ") and r.stderr.count("\n") == 1
+    assert "Traceback" not in r.stderr
+
+
+def test_cli_missing_argument_is_exit_2_and_one_line():
+    r = run_cli("calibrate")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+
+
+def test_atomic_write_keeps_the_good_file(tmp_path, monkeypatch):
+    target = tmp_path / "model.json"
+    atomic_write_text(target, "good\n")
+
+    def boom(src, dst):
+        raise OSError("disk full")
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError):
+        atomic_write_text(target, "half")
+    assert target.read_text() == "good\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["model.json"]
+
+
+def test_output_in_a_missing_folder(tmp_path):
+    with pytest.raises(slmlab.SlmlabError, match="does not exist"):
+        atomic_write_text(tmp_path / "no" / "file.txt", "x")
+
+
+def test_read_points_passes_other_columns_through(tmp_path):
+    f = tmp_path / "p.csv"
+    f.write_text("id,wl1,wl2,wr1,wr2\na,1,2,3,4\nb,,,,\n")
+    df = slmlab.read_points(f)
+    assert list(df["id"]) == ["a", "b"] and df["wl1"].isna().tolist() == [False, True]

@@ -1,0 +1,22 @@
+"""Every notebook runs top to bottom in a fresh kernel, with the small-size parameter (none left out)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+from slmlab.notebooks import run_notebook
+
+NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
+
+
+def test_there_are_notebooks():
+    assert NOTEBOOKS, "no notebook found in notebooks/"
+
+
+@pytest.mark.notebook
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebook_runs(path, tmp_path):
+    run_notebook(path, env={"SLMLAB_SIZE": os.environ.get("SLMLAB_SIZE", "small"),
+                            "SLMLAB_FIGURES": str(tmp_path / "figures")})
+    assert list((tmp_path / "figures").glob("*.png")), "the notebook wrote no figure"
