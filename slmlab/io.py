@@ -43,6 +43,8 @@ IMAGE_COLUMNS = ["wl1", "wl2", "wr1", "wr2"]
 POINT_COLUMNS = ["sequence", "position", *STAGE_COLUMNS, "row", "col", *IMAGE_COLUMNS]
 TRUTH_COLUMNS = [*KEY_COLUMNS, *IMAGE_COLUMNS, "X_mm", "Y_mm", "Z_mm"]
 FLOAT_FORMAT = "%.10g"
+_UMASK = os.umask(0)
+os.umask(_UMASK)
 
 
 @dataclass
@@ -125,6 +127,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     _check_parent(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the mode a plain open would
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()

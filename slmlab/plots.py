@@ -13,7 +13,7 @@ from .io import CalibrationSet
 from .microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
-           "plot_image_tracks"]
+           "plot_image_tracks", "plot_depth_response"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -57,13 +57,13 @@ def plot_cmo_geometry(microscope: Microscope, ax=None, *, exaggerate_z: float = 
     for side, c in (("l", cl), ("r", cr)):
         col = VIEW_COLOURS[side]
         ax.plot([c], [L * ez], "o", color=col, ms=7)
-        ax.text(c, L * ez * 1.03, f"{'left' if side == 'l' else 'right'} view\ncentre", ha="center", va="bottom",
-                fontsize=8, color=col)
+        ax.text(c + (-4 if side == "l" else 4), L * ez, f"{'left' if side == 'l' else 'right'} view centre ",
+                ha="right" if side == "l" else "left", va="center", fontsize=8, color=col)
         for x_edge in (-half_field, 0.0, half_field):
             ax.plot([c, x_edge], [L * ez, 0.0], color=col, lw=1.2 if x_edge == 0 else 0.6,
                     ls="-" if x_edge == 0 else ":")
     ax.axhline(0.0, color="k", lw=0.8)
-    ax.text(-lens_half, 0.0, "focal plane ", ha="right", va="center", fontsize=8)
+    ax.text(lens_half, 0.02 * L * ez, "focal plane", ha="left", va="bottom", fontsize=8)
     if show_dof:
         dof = o.depth_of_field_mm * ez
         ax.axhspan(-dof, dof, color="0.85", zorder=0)
@@ -71,7 +71,8 @@ def plot_cmo_geometry(microscope: Microscope, ax=None, *, exaggerate_z: float = 
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("z [mm]" + (f" (×{ez:g})" if ez != 1 else ""))
     ax.set_title(f"Two views through the common main objective (L = {L:g} mm)", fontsize=10)
-    ax.set_xlim(-1.6 * lens_half, 2.6 * lens_half)
+    ax.set_xlim(-2.2 * lens_half, 2.6 * lens_half)
+    ax.set_ylim(-0.05 * L * ez, 1.12 * L * ez)
     return ax
 
 
@@ -149,4 +150,34 @@ def plot_image_tracks(cal: CalibrationSet, axes=None, *, sequences=("X", "Y", "Z
         ax.set_title(f"{'left' if side == 'l' else 'right'} image", fontsize=10)
     axes[0].set_ylabel("w2 [px]")
     axes[0].legend(fontsize=7, loc="lower left")
+    return axes
+
+
+def plot_depth_response(responses: dict, axes=None):
+    """Disparity and relative magnification against depth for one or more microscopes.
+
+    Parameters
+    ----------
+    responses
+        label -> DataFrame of :func:`slmlab.simulate.depth_response`.
+    """
+    if axes is None:
+        _, axes = new_figure(1, 2, width_in=9.0, height_in=3.6)
+    for label, df in responses.items():
+        z = df["z_mm"].to_numpy()
+        d = df["disparity_px"].to_numpy()
+        i0 = int(np.argmin(np.abs(z)))
+        rate = np.gradient(d, z)[i0]
+        axes[0].plot(z, d - (d[i0] + rate * (z - z[i0])), label=f"{label} ({rate:.2f} px/mm at focus)")
+        mag = df["magnification_l_px_per_mm"].to_numpy()
+        axes[1].plot(z, 100 * (mag / mag[i0] - 1), label=label)
+    axes[0].set_xlabel("z above the focal plane [mm]")
+    axes[0].set_ylabel("disparity − its tangent at focus [px]")
+    axes[0].set_title("Disparity is not exactly linear in depth", fontsize=10)
+    axes[1].set_xlabel("z above the focal plane [mm]")
+    axes[1].set_ylabel("magnification change [%]")
+    axes[1].set_title("Perspective: magnification grows towards the objective", fontsize=10)
+    for ax in axes:
+        ax.axhline(0, color="0.6", lw=0.6)
+        ax.legend(fontsize=7)
     return axes

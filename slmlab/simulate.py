@@ -52,7 +52,7 @@ from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, CalibrationSet
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 
-__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response",
+__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper",
            "stage_origin"]
 
 # --------------------------------------------------------------------------------------------- presets
@@ -349,3 +349,29 @@ def depth_response(microscope: Microscope, z_mm: np.ndarray, *, x_mm: float = 0.
         "magnification_l_px_per_mm": np.hypot(*(wb[:, 0:2] - wa[:, 0:2]).T) / baseline_mm,
         "magnification_r_px_per_mm": np.hypot(*(wb[:, 2:4] - wa[:, 2:4]).T) / baseline_mm,
     })
+
+
+def nominal_vs_paper(microscope: Microscope) -> pd.DataFrame:
+    """The model parameters the microscope implies to first order, beside the paper's values (Table 4, §5.1).
+
+    These are the simulator's *nominal* values, from its geometry; what the paper's method estimates from
+    simulated data is computed in notebooks 04–05.
+    """
+    from .paths import paper_reference
+
+    d = describe(microscope).set_index("quantity")["value"]
+    t4 = paper_reference("table4")
+    rows = [
+        ("thetaX_deg", d["θX (nominal)"], t4["thetaX_deg"]["mean"]),
+        ("EX_mm_per_px", d["EX, EY (nominal)"], t4["EX_mm_per_px"]["mean"]),
+        ("EY_mm_per_px", d["EX, EY (nominal)"], t4["EY_mm_per_px"]["mean"]),
+        ("EZ_mm_per_px", d["EZ (nominal)"], t4["EZ_mm_per_px"]["mean"]),
+        ("KYX", d["KYX ≈ -y_skew"], t4["KYX"]["mean"]),
+        ("KYZ", d["KYZ ≈ -y_tilt"], t4["KYZ"]["mean"]),
+        ("KZX", d["KZX ≈ -z_tilt_x"], t4["KZX"]["mean"]),
+        ("KZY", d["KZY ≈ -z_tilt_y"], t4["KZY"]["mean"]),
+    ]
+    df = pd.DataFrame(rows, columns=["parameter", "simulator_nominal", "paper"])
+    df["simulator_nominal"] = df["simulator_nominal"].astype(float)
+    df["relative_difference_percent"] = 100 * (df["simulator_nominal"] / df["paper"] - 1)
+    return df
