@@ -43,6 +43,7 @@ __all__ = [
     "Stage",
     "Plate",
     "CentroidNoise",
+    "Imaging",
     "Microscope",
     "rotation_z",
 ]
@@ -279,13 +280,51 @@ class CentroidNoise:
 
 
 @dataclass(frozen=True)
+class Imaging:
+    """How the cameras turn light into 8-bit images (METHOD.md §7, images).
+
+    Attributes
+    ----------
+    numerical_aperture
+        object-side NA of each sub-system [-]: the geometric defocus blur radius is ``|z|·NA`` [mm], and
+        diffraction adds a Gaussian of σ = 0.21 λ / NA.
+    wavelength_um
+        mean wavelength of the illumination [µm].
+    full_well_e
+        electrons at 255 DN [e-].
+    read_noise_e
+        read noise [e-].
+    background_dn
+        grey level of the plate's bright background at the image centre [DN].
+    dot_dn
+        grey level inside a sharp dot [DN] (dark dots on a bright plate).
+    vignetting
+        relative fall-off of the illumination at the image corners [-].
+    """
+
+    numerical_aperture: float = 0.02
+    wavelength_um: float = 0.55
+    full_well_e: float = 10000.0
+    read_noise_e: float = 8.0
+    background_dn: float = 200.0
+    dot_dn: float = 40.0
+    vignetting: float = 0.25
+
+    def blur_px(self, z_mm: np.ndarray, pixel_mm: float) -> tuple[np.ndarray, float]:
+        """Geometric defocus radius [px] at heights ``z_mm`` and the diffraction Gaussian's σ [px]."""
+        radius = np.abs(np.asarray(z_mm, dtype=float)) * self.numerical_aperture / pixel_mm
+        sigma = 0.21 * self.wavelength_um * 1e-3 / self.numerical_aperture / pixel_mm
+        return radius, sigma
+
+
+@dataclass(frozen=True)
 class Microscope:
     """The virtual CMO stereo microscope: optics, stage, plates and the dot finder's noise.
 
     Attributes
     ----------
-    optics, stage, noise
-        see :class:`Optics`, :class:`Stage`, :class:`CentroidNoise`.
+    optics, stage, noise, imaging
+        see :class:`Optics`, :class:`Stage`, :class:`CentroidNoise`, :class:`Imaging`.
     grid_plate
         the large plate of the ``grid`` sequence (paper §3: 27 × 29, pitch 0.2 mm).
     moving_plate
@@ -299,6 +338,7 @@ class Microscope:
     noise: CentroidNoise = field(default_factory=CentroidNoise)
     grid_plate: Plate = field(default_factory=lambda: Plate(27, 29, 0.2, 0.1))
     moving_plate: Plate = field(default_factory=lambda: Plate(7, 7, 0.3, 0.15))
+    imaging: Imaging = field(default_factory=Imaging)
     preset: str = "custom"
 
     # ------------------------------------------------------------------ projection
@@ -406,7 +446,7 @@ def from_dict(d: dict) -> Microscope:
                 continue
             val = data[f.name]
             sub = {"optics": Optics, "stage": Stage, "noise": CentroidNoise, "grid_plate": Plate,
-                   "moving_plate": Plate, "left": View, "right": View}.get(f.name)
+                   "moving_plate": Plate, "imaging": Imaging, "left": View, "right": View}.get(f.name)
             if sub is not None:
                 val = build(sub, val)
             elif isinstance(val, list):
