@@ -38,7 +38,8 @@ from .errors import SlmlabError
 
 __all__ = ["Blobs", "ImageDots", "read_image", "estimate_background", "find_blobs", "refine_moments",
            "refine_ellipse", "index_lattice", "extract_image", "extract_set", "extraction_errors",
-           "extraction_summary", "IMAGE_NAME"]
+           "extraction_summary", "extract_folder", "error_by_defocus", "extract_stereo_pairs", "measured_centres",
+           "IMAGE_NAME"]
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
 METHODS = ("moments", "ellipse")
@@ -127,7 +128,7 @@ def find_blobs(img: np.ndarray, *, dark: bool = True, threshold: float = 0.6, ba
     holes = np.asarray(holes, bool)
     if len(areas):
         med = np.median(areas)
-        ok = (areas > 0.4 * med) & (areas < 2.5 * med)
+        ok = (areas > 0.5 * med) & (areas < 1.6 * med)  # two touching blobs (dust on a dot) are ~2x
         rejected += int((~ok).sum())
         cents, areas, holes = cents[ok], areas[ok], holes[ok]
     return Blobs(cents, areas, np.sqrt(areas / np.pi), holes, rejected)
@@ -418,6 +419,22 @@ def _absolute(lat: Lattice, on: np.ndarray, rows: int, cols: int, image_size: tu
     return (out[1], out[0]), ""
 
 
+def _marker_indices(lat: Lattice, on: np.ndarray, holes: np.ndarray, origin: tuple[int, int]):
+    """Plate ``[row, col]`` from three marker dots (donuts) forming an L on the lattice: the corner marker is
+    ``origin``, columns count towards the marker on its row, rows towards the marker on its column."""
+    from itertools import permutations
+
+    idx = np.flatnonzero(on & holes)
+    for k0, kx, ky in permutations(idx, 3):
+        if lat.b[kx] == lat.b[k0] and lat.a[ky] == lat.a[k0] and kx != ky:
+            sa = np.sign(lat.a[kx] - lat.a[k0])
+            sb = np.sign(lat.b[ky] - lat.b[k0])
+            col = sa * (lat.a[on] - lat.a[k0]) + origin[1]
+            row = sb * (lat.b[on] - lat.b[k0]) + origin[0]
+            return (row, col), ""
+    return None, f"{len(idx)} marker dot(s) found but no three of them form an L on the lattice"
+
+
 @dataclass
 class ImageDots:
     """Dots found in one image: ``table`` with ``row, col, w1, w2, marker``; counts and a note."""
@@ -431,7 +448,8 @@ class ImageDots:
 
 
 def extract_image(img: np.ndarray, rows: int, cols: int, *, method: str = "moments", dark: bool = True,
-                  dot_diameter_px: float | None = None) -> ImageDots:
+                  dot_diameter_px: float | None = None, anchor: str = "plate",
+                  marker_origin: tuple[int, int] = (2, 2)) -> ImageDots:
     """Find, refine and index the dots of a ``rows × cols`` plate in one 8-bit image.
 
     Parameters
@@ -446,6 +464,10 @@ def extract_image(img: np.ndarray, rows: int, cols: int, *, method: str = "momen
         dark dots on a bright plate.
     dot_diameter_px
         expected dot diameter [px] if known (for the border margin of the indexing).
+    anchor
+        ``'plate'``: absolute indices from the plate's size and where the lattice leaves the image;
+        ``'markers'``: from three donut markers forming an L (targets that overfill the field, e.g. DICe's),
+        the corner marker at ``marker_origin`` ``(row, col)``.
     """
     if method not in METHODS:
         raise SlmlabError(f"unknown centre method {method!r}; use one of {', '.join(METHODS)}")
@@ -459,7 +481,10 @@ def extract_image(img: np.ndarray, rows: int, cols: int, *, method: str = "momen
     lat, on = index_lattice(centres)
     spurious = int((~on).sum())
     radius = (dot_diameter_px / 2) if dot_diameter_px else float(np.median(blobs.radii))
-    ij, note = _absolute(lat, on, rows, cols, (img.shape[1], img.shape[0]), radius + 2)
+    if anchor == "markers":
+        ij, note = _marker_indices(lat, on, blobs.holes, marker_origin)
+    else:
+        ij, note = _absolute(lat, on, rows, cols, (img.shape[1], img.shape[0]), radius + 2)
     if ij is None:
         return ImageDots(empty, len(centres), blobs.rejected, spurious, note, lat)
     table = pd.DataFrame({"row": ij[0].astype(int), "col": ij[1].astype(int), "w1": centres[on, 0],
@@ -597,3 +622,76 @@ def extraction_summary(errors: pd.DataFrame, *, depth_of_field_mm: float = 1.13,
         "rms_depth_of_field_px": per_coord(dof) if dof.any() else float("nan"),
         "extra_found": int((errors["found"] & ~errors["visible"]).sum()),
     }
+
+
+def extract_folder(set_dir: str | Path, sequences: list[str], *, methods=METHODS) -> pd.DataFrame:
+    """Per-dot extraction errors of a rendered simulated set for several centre methods.
+
+    Returns :func:`extraction_errors` rows of the chosen sequences with a ``method`` column (for the error
+    against defocus figure and the choice of the default method).
+    """
+    from .io import read_set
+
+    set_dir = Path(set_dir)
+    cal = read_set(set_dir)
+    frames = []
+    for method in methods:
+        rows = []
+        for seq in sequences:
+            plate = cal.plate(seq)
+            for pos in sorted(cal.sequence(seq)["position"].unique()):
+                for side in "lr":
+                    img = read_image(set_dir / "images" / f"{seq}_{pos:03d}_{side}.png")
+                    t = extract_image(img, int(plate["rows"]), int(plate["cols"]), method=method).table
+                    t = t.rename(columns={"w1": f"w{side}1", "w2": f"w{side}2"})[["row", "col", f"w{side}1", f"w{side}2"]]
+                    t.insert(0, "sequence", seq)
+                    t.insert(1, "position", pos)
+                    rows.append(t.set_index(["sequence", "position", "row", "col"]))
+        pts = pd.concat(rows).groupby(level=[0, 1, 2, 3]).first().reset_index()
+        sub = cal.truth["sequence"].isin(sequences)
+        from .io import CalibrationSet
+
+        err = extraction_errors(pts, CalibrationSet(pts, cal.meta, cal.truth[sub].reset_index(drop=True)))
+        err.insert(0, "method", method)
+        frames.append(err)
+    return pd.concat(frames, ignore_index=True)
+
+
+def error_by_defocus(errors: pd.DataFrame, *, bin_mm: float = 0.25) -> pd.DataFrame:
+    """Centre RMS per coordinate [px] of found, correctly indexed, visible dots, by method and depth bin."""
+    e = errors[errors["visible"] & errors["found"]].copy()
+    e = e[np.hypot(e["err1"], e["err2"]) < 1.0]
+    e["z_bin_mm"] = np.round(e["z_mm"] / bin_mm) * bin_mm
+    g = e.groupby(["method", "z_bin_mm"])
+    return pd.DataFrame({
+        "rms_px": g.apply(lambda d: float(np.sqrt(np.mean(np.r_[d["err1"], d["err2"]] ** 2))), include_groups=False),
+        "dots": g.size(),
+    }).reset_index()
+
+
+def extract_stereo_pairs(pairs: list[tuple[Path, Path]], rows: int, cols: int, *, anchor: str = "markers") -> pd.DataFrame:
+    """Extract real stereo pairs (left, right image paths): dots found and indexed per image, and common.
+
+    Returns a DataFrame ``pair, left, right, common, note``; the per-pair tables are in the ``.attrs``.
+    """
+    out, tables = [], {}
+    for left, right in pairs:
+        views = [extract_image(read_image(p), rows, cols, anchor=anchor) for p in (left, right)]
+        m = views[0].table.merge(views[1].table, on=["row", "col"], suffixes=("_l", "_r"))
+        tables[Path(left).stem] = m
+        out.append((Path(left).stem, len(views[0].table), len(views[1].table), len(m),
+                    "; ".join(v.note for v in views if v.note)))
+    df = pd.DataFrame(out, columns=["pair", "left", "right", "common", "note"])
+    df.attrs["tables"] = tables
+    return df
+
+
+def measured_centres(errors: pd.DataFrame, truth: pd.DataFrame, sequence: str, position: int, view: str,
+                     method: str = "moments") -> pd.DataFrame:
+    """The extracted centres ``row, col, w1, w2`` [px] of one image, rebuilt from :func:`extract_folder`'s
+    errors and the truth (extracted = true + error)."""
+    e = errors[(errors["method"] == method) & (errors["sequence"] == sequence) & (errors["position"] == position)
+               & (errors["view"] == view) & errors["found"]].set_index(["row", "col"])
+    t = truth[(truth["sequence"] == sequence) & (truth["position"] == position)].set_index(["row", "col"])
+    t = t.loc[e.index]
+    return pd.DataFrame({"w1": t[f"w{view}1"] + e["err1"], "w2": t[f"w{view}2"] + e["err2"]}).reset_index()

@@ -13,7 +13,8 @@ from .io import CalibrationSet
 from .microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
-           "plot_image_tracks", "plot_depth_response"]
+           "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
+           "plot_dots_on_image"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -181,3 +182,58 @@ def plot_depth_response(responses: dict, axes=None):
         ax.axhline(0, color="0.6", lw=0.6)
         ax.legend(fontsize=7)
     return axes
+
+
+def plot_error_vs_defocus(by_depth, ax=None, *, depth_of_field_mm: float = 1.13, targets=(0.03, 0.05)):
+    """Centre RMS error [px] against height above the focal plane, one line per method
+    (``by_depth`` from :func:`slmlab.extract.error_by_defocus`); the targets and the depth of field drawn."""
+    ax = _ax(ax)
+    for method, d in by_depth.groupby("method"):
+        ax.plot(d["z_bin_mm"], d["rms_px"], "o-", ms=3, label=method)
+    ax.axvspan(-depth_of_field_mm, depth_of_field_mm, color="0.92", zorder=0, label="depth of field")
+    ax.axhline(targets[0], color="tab:green", ls="--", lw=0.8, label=f"target in focus ({targets[0]} px)")
+    ax.axhline(targets[1], color="tab:red", ls="--", lw=0.8, label=f"target over the depth of field ({targets[1]} px)")
+    ax.set_xlabel("z above the focal plane [mm]")
+    ax.set_ylabel("centre RMS error per coordinate [px]")
+    ax.set_ylim(0, max(0.06, float(by_depth["rms_px"].max()) * 1.1))
+    ax.legend(fontsize=7)
+    ax.set_title("Dot centre error against defocus (rendered images vs truth)", fontsize=10)
+    return ax
+
+
+def plot_plate_index(rows: int, cols: int, ax=None, *, show: int = 5):
+    """The index definition of the calibration plate (paper Fig 3a): dot ``A[i,j]`` in row ``i``, column
+    ``j``; ``A11`` top left, ``AM1`` bottom left, ``A1N`` top right. Draws a ``show × show`` corner."""
+    ax = _ax(ax)
+    i, j = np.meshgrid(np.arange(show), np.arange(show), indexing="ij")
+    ax.scatter(j.ravel(), i.ravel(), s=120, color="k")
+    labels = {(0, 0): "A$_{11}$", (show - 1, 0): "A$_{M1}$", (0, show - 1): "A$_{1N}$", (show - 1, show - 1): "A$_{MN}$"}
+    for (r, c), txt in labels.items():
+        ax.text(c, r - 0.38, txt, ha="center", va="bottom", fontsize=10)
+    ax.text((show - 1) / 2, -1.1, f"{cols} columns (j = 1..N)", ha="center", fontsize=9)
+    ax.text(-1.0, (show - 1) / 2, f"{rows} rows\n(i = 1..M)", ha="right", va="center", fontsize=9)
+    ax.set_xlim(-2.4, show)
+    ax.set_ylim(show, -1.6)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    ax.set_title("(a) grid point indices", fontsize=10)
+    return ax
+
+
+def plot_dots_on_image(image, table, ax=None, *, title: str = "", reduce: int = 4):
+    """An image (shown at 1/``reduce`` scale) with the extracted dots connected row by row (red) and
+    column by column (blue), as in the paper's Fig 3b–c. ``table`` has ``row, col, w1, w2``."""
+    import cv2
+
+    ax = _ax(ax)
+    small = cv2.resize(image, (image.shape[1] // reduce, image.shape[0] // reduce), interpolation=cv2.INTER_AREA)
+    ax.imshow(small, cmap="gray", vmin=0, vmax=255, extent=(-0.5, image.shape[1] - 0.5, image.shape[0] - 0.5, -0.5))
+    for key, colour in (("row", "tab:red"), ("col", "tab:blue")):
+        other = "col" if key == "row" else "row"
+        for _, g in table.groupby(key):
+            g = g.sort_values(other)
+            ax.plot(g["w1"], g["w2"], "-", color=colour, lw=0.5)
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    return ax

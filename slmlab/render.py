@@ -29,7 +29,7 @@ from .errors import SlmlabError
 from .io import CalibrationSet, atomic_write_bytes
 from .microscope import Microscope, Plate, from_dict
 
-__all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "image_name", "write_png"]
+__all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -191,3 +191,29 @@ def render_set(cal: CalibrationSet, out_dir: str | Path, *, progress: bool | Non
             write_png(path, img)
             written.append(path)
     return written
+
+
+def render_plate(microscope: Microscope, plate: Plate, centre_mm=(0.0, 0.0, 0.0), *, side: str = "l", seed: int = 0,
+                 drop: list[tuple[int, int]] | None = None):
+    """One image of a whole plate centred at microscope-frame ``centre_mm``, with its truth.
+
+    Parameters
+    ----------
+    drop
+        ``[(row, col), ...]`` dots left off the plate (missing dots).
+
+    Returns
+    -------
+    image, truth
+        the 8-bit image and a DataFrame ``row, col, w1, w2`` [px] of every rendered dot's true centre.
+    """
+    import pandas as pd
+
+    i, j, pts = plate.nominal_points()
+    keep = np.ones(len(i), bool)
+    for r, c in drop or []:
+        keep &= ~((i == r) & (j == c))
+    p = np.asarray(centre_mm, float) + pts[keep] @ plate.orientation().T
+    img = render_view(microscope, p, plate, side, np.random.default_rng(seed))
+    w = microscope.project_view(p, side)
+    return img, pd.DataFrame({"row": i[keep], "col": j[keep], "w1": w[:, 0], "w2": w[:, 1]})

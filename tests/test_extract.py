@@ -1,0 +1,157 @@
+"""Rendering and dot extraction: accuracy against truth, robustness, real images (METHOD.md §7)."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+import slmlab
+from slmlab.extract import extract_image, extraction_errors, extraction_summary, read_image
+from slmlab.render import render_plate
+
+from conftest import SHARED
+
+
+@pytest.fixture(scope="module")
+def rendered_set(tmp_path_factory):
+    """Test 5 of Table 3 with images, extracted by the command line."""
+    d = tmp_path_factory.mktemp("rendered") / "set"
+    for args in (["simulate", str(d), "--test", "5", "--seed", "4", "--images"], ["extract", str(d)]):
+        r = subprocess.run([sys.executable, "-m", "slmlab", *args], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+    return d
+
+
+def test_extraction_meets_the_accuracy_targets(rendered_set):
+    cal = slmlab.read_set(rendered_set)
+    s = extraction_summary(extraction_errors(cal.points, cal))
+    assert s["found_and_indexed_percent"] >= 99.0
+    assert s["misindexed"] == 0
+    assert s["rms_in_focus_px"] <= 0.03
+    assert s["rms_depth_of_field_px"] <= 0.05
+
+
+def test_rendered_images_are_byte_identical_for_a_seed(rendered_set, tmp_path):
+    cal = slmlab.simulate_set(slmlab.preset("paper"), slmlab.paper_test(5), seed=4)
+    from slmlab.render import render_set
+
+    render_set(cal, tmp_path, sequences=["Z"], progress=False)
+    for f in sorted((tmp_path / "images").glob("Z_00[12]_*.png")):
+        assert f.read_bytes() == (rendered_set / "images" / f.name).read_bytes()
+
+
+def test_rendered_dot_centre_is_the_truth_centre():
+    """The noise-free rendering's intensity centroid sits on the projected dot centre."""
+    m = slmlab.preset("paper")
+    m = replace(m, imaging=replace(m.imaging, full_well_e=1e12, read_noise_e=0.0, vignetting=0.0))
+    img, truth = render_plate(m, m.moving_plate, (0.3, -0.2, 0.0))
+    dots = extract_image(img, 7, 7)
+    err = dots.table.merge(truth, on=["row", "col"])
+    e = np.r_[err["w1_x"] - err["w1_y"], err["w2_x"] - err["w2_y"]]
+    assert len(err) == 49 and np.sqrt(np.mean(e ** 2)) < 0.01
+
+
+def _check(img, truth, rows=7, cols=7, rms=0.03):
+    dots = extract_image(img, rows, cols)
+    assert dots.note == ""
+    merged = dots.table.merge(truth, on=["row", "col"], how="outer", indicator=True)
+    assert (merged["_merge"] == "both").mean() >= 0.99, merged["_merge"].value_counts()
+    e = np.r_[merged["w1_x"] - merged["w1_y"], merged["w2_x"] - merged["w2_y"]]
+    assert np.nanmax(np.abs(e)) < 0.2 and np.sqrt(np.nanmean(e ** 2)) < rms
+    return dots
+
+
+@pytest.mark.parametrize("rotation_deg", [-4.0, 3.0])
+def test_rotated_plate(rotation_deg):
+    m = slmlab.preset("paper")
+    plate = replace(m.moving_plate, rotation_deg=rotation_deg)
+    _check(*render_plate(m, plate, (0.2, 0.1, 0.0), seed=1))
+
+
+def test_plate_partly_outside_the_field():
+    m = slmlab.preset("paper")
+    # the left image edge is at x ~ +2.8 mm (inverted image): push the plate's first two columns out
+    img, truth = render_plate(m, m.moving_plate, (2.85, 0.0, 0.0), seed=2)
+    visible = truth[(truth["w1"] > 30) & (truth["w1"] < 2017)]
+    assert 0 < len(visible) < 49
+    dots = _check(img, visible)
+    assert dots.table["col"].min() > 1  # absolute indices survive the cut
+
+
+def test_missing_dots_and_a_spurious_blob():
+    m = slmlab.preset("paper")
+    drop = [(1, 3), (4, 4), (7, 7), (5, 1)]
+    img, truth = render_plate(m, m.moving_plate, (-0.4, 0.3, 0.0), seed=3, drop=drop)
+    # a dust speck of dot size in the middle of a lattice cell
+    at = truth.set_index(["row", "col"])[["w1", "w2"]]
+    spot = (at.loc[(2, 2)].to_numpy() + at.loc[(3, 3)].to_numpy()) / 2
+    cv2.circle(img, (int(spot[0]), int(spot[1])), 24, 45, -1, lineType=cv2.LINE_AA)
+    dots = _check(img, truth)
+    assert dots.spurious >= 1
+
+
+def test_dust_touching_a_dot_drops_that_dot_rather_than_misplacing_it():
+    m = slmlab.preset("paper")
+    img, truth = render_plate(m, m.moving_plate, (0.1, 0.0, 0.0), seed=6)
+    at = truth.set_index(["row", "col"])[["w1", "w2"]]
+    spot = at.loc[(4, 4)].to_numpy() + [40.0, 0.0]
+    cv2.circle(img, (int(spot[0]), int(spot[1])), 20, 45, -1, lineType=cv2.LINE_AA)
+    dots = extract_image(img, 7, 7)
+    merged = dots.table.merge(truth, on=["row", "col"])
+    assert (4, 4) not in set(zip(dots.table["row"], dots.table["col"]))
+    assert len(merged) >= 46
+    e = np.r_[merged["w1_x"] - merged["w1_y"], merged["w2_x"] - merged["w2_y"]]
+    assert np.max(np.abs(e)) < 0.3
+
+
+def test_defocused_plate_is_still_found():
+    m = slmlab.preset("paper")
+    _check(*render_plate(m, m.moving_plate, (0.0, 0.0, -1.1), seed=5), rms=0.05)
+
+
+def test_unreadable_and_truncated_images(tmp_path):
+    bad = tmp_path / "X_001_l.png"
+    bad.write_bytes(b"not a png")
+    with pytest.raises(slmlab.SlmlabError, match="cannot be read"):
+        read_image(bad)
+    m = slmlab.preset("paper")
+    img, _ = render_plate(m, m.moving_plate)
+    ok, buf = cv2.imencode(".png", img)
+    bad.write_bytes(buf.tobytes()[: len(buf) // 3])
+    with pytest.raises(slmlab.SlmlabError):
+        read_image(bad)
+
+
+def test_images_of_different_sizes_are_refused(rendered_set, tmp_path):
+    import shutil
+
+    d = tmp_path / "set"
+    shutil.copytree(rendered_set, d)
+    f = d / "images" / "X_002_r.png"
+    cv2.imwrite(str(f), cv2.imread(str(f), 0)[:1000, :1000])
+    r = subprocess.run([sys.executable, "-m", "slmlab", "extract", str(d)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "one size" in r.stderr and r.stderr.count("\n") == 1
+
+
+DICE = SHARED / "realdata" / "dice-calb-sys2-dot-target" / "images"
+
+
+@pytest.mark.skipif(not DICE.is_dir(), reason="real DICe dot-target images not present in ../shared/realdata")
+def test_real_dot_target_pairs_are_found_and_indexed_consistently():
+    counts = []
+    for left in sorted(DICE.glob("*_0.jpeg")):
+        views = [extract_image(read_image(p), 8, 10, anchor="markers") for p in (left, left.with_name(left.name.replace("_0.", "_1.")))]
+        assert all(v.note == "" for v in views), [v.note for v in views]
+        m = views[0].table.merge(views[1].table, on=["row", "col"])
+        counts.append((left.stem, len(views[0].table), len(views[1].table), len(m)))
+        assert len(m) >= 70
+        # the same [row, col] in both views must be the same physical dot: an epipolar-consistent set
+        _, inl = cv2.findFundamentalMat(m[["w1_x", "w2_x"]].to_numpy(), m[["w1_y", "w2_y"]].to_numpy(),
+                                        cv2.FM_RANSAC, 2.0, 0.999)
+        assert inl.mean() >= 0.95
+    assert len(counts) == 14
+    print(pd.DataFrame(counts, columns=["pair", "left", "right", "common"]).to_string(index=False))
