@@ -1,0 +1,232 @@
+"""Image alignment and disparity distortion correction (paper §4, Eqs 7–16, Table 2, Figs 7–8; METHOD.md §2).
+
+Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`slmlab.distortion`).
+
+* **Rotation α** (Eqs 7–9): along the X sequence each grid point traces a path in each view; the slope ``k`` of
+  ``w2`` on ``w1`` (least squares over the positions) gives the path angle ``atan(k)``;
+  ``α = mean(angle_l − angle_r)``. The right view is rotated about the image origin so that its paths take the
+  left view's direction: ``w1 ← w1·cos α − w2·sin α``, ``w2 ← w1·sin α + w2·cos α``.
+* **Offset δw2** (Eqs 10–12): the mean of ``w2_l − w2_r`` over all points and positions, per sequence (X, Y, Z),
+  then the mean of the three; ``w2_r ← w2_r + δw2``.
+* **Disparity** ``D = w1_r − w1_l``. Along the X sequence (constant Z) it is a parabola in ``w1`` (Fig 7a).
+* **Disparity distortion** (Eqs 13–16), decision on the garbled text: per grid point a line
+  ``D0 ≈ k_D·w1_l + b_D`` along its X path; the residuals of all samples fitted by one quadratic
+  ``aD·w1_l² + bD·w1_l + cD``; corrected ``D = D0 − (aD·w1_l² + bD·w1_l + cD)``, the sign checked by its
+  effect (the corrected paths must be straighter). Also the identifiable joint fit
+  ``D0 = d[i,j] + aD·w1² + bD·w1`` with one constant per grid point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .io import CalibrationSet
+
+__all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "fit_disparity_paper",
+           "fit_disparity_joint", "path_straightness", "AlignmentResult", "estimate_alignment", "sequence_coordinates"]
+
+MIN_POSITIONS = 3
+
+
+def rotate(w1, w2, angle_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotate image coordinates about the image origin (Eq 9): ``w1·cos − w2·sin``, ``w1·sin + w2·cos``."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    w1, w2 = np.asarray(w1, float), np.asarray(w2, float)
+    return w1 * c - w2 * s, w1 * s + w2 * c
+
+
+def sequence_coordinates(cal: CalibrationSet, sequence: str, correct=None) -> pd.DataFrame:
+    """The rows of one sequence with image coordinates ``wl1, wl2, wr1, wr2`` [px], corrected by
+    ``correct`` (a function ``(n, 4) → (n, 4)``) if given; rows with a missing coordinate dropped."""
+    df = cal.sequence(sequence)
+    df = df[df[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)].copy()
+    if correct is not None and len(df):
+        df[["wl1", "wl2", "wr1", "wr2"]] = correct(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
+    return df
+
+
+def path_angles(df: pd.DataFrame, c1: str, c2: str) -> pd.Series:
+    """Angle [rad] of each grid point's path: ``atan`` of the least-squares slope of ``c2`` on ``c1`` over the
+    positions (Eq 7), for grid points seen at ≥ 3 positions; indexed by ``(row, col)``."""
+    out = {}
+    for key, g in df.groupby(["row", "col"]):
+        if len(g) >= MIN_POSITIONS and np.ptp(g[c1]) > 0:
+            out[key] = np.arctan(np.polyfit(g[c1], g[c2], 1)[0])
+    return pd.Series(out, dtype=float)
+
+
+def estimate_alpha(xseq: pd.DataFrame) -> tuple[float, float, int]:
+    """``α`` [rad] (Eq 8), its standard deviation over grid points [rad], and the number of grid points."""
+    a = path_angles(xseq, "wl1", "wl2") - path_angles(xseq, "wr1", "wr2")
+    a = a.dropna()
+    if len(a) == 0:
+        raise SlmlabError("no grid point is seen at 3 or more positions of the X sequence in both views: "
+                          "cannot estimate α (§4, Eq 8)")
+    return float(a.mean()), float(a.std(ddof=1)) if len(a) > 1 else 0.0, len(a)
+
+
+def estimate_dw2(sequences: dict[str, pd.DataFrame]) -> tuple[float, dict[str, float], float]:
+    """``δw2`` [px] (Eqs 10–12): the mean over sequences of the mean of ``w2_l − w2_r``; the per-sequence
+    values; the standard deviation of ``w2_l − w2_r`` over all samples [px]."""
+    per = {}
+    allv = []
+    for name, df in sequences.items():
+        if len(df):
+            d = (df["wl2"] - df["wr2"]).to_numpy()
+            per[name] = float(d.mean())
+            allv.append(d)
+    if not per:
+        raise SlmlabError("no X, Y or Z sequence seen in both views: cannot estimate δw2 (§4, Eq 12)")
+    return float(np.mean(list(per.values()))), per, float(np.std(np.concatenate(allv), ddof=1))
+
+
+@dataclass(frozen=True)
+class DisparityCorrection:
+    """The disparity distortion ``aD·w1² + bD·w1 + cD`` subtracted from ``D0 = w1_r − w1_l`` (Eq 16).
+
+    Attributes
+    ----------
+    aD, bD, cD_px
+        [1/px], [-], [px].
+    method
+        ``'paper'`` or ``'joint'``.
+    """
+
+    aD: float
+    bD: float
+    cD_px: float
+    method: str = "paper"
+
+    def apply(self, d0, w1_left) -> np.ndarray:
+        """Corrected disparity [px]."""
+        w = np.asarray(w1_left, float)
+        return np.asarray(d0, float) - (self.aD * w * w + self.bD * w + self.cD_px)
+
+
+def path_straightness(df: pd.DataFrame, disparity: np.ndarray) -> float:
+    """RMS [px] of the per-grid-point line fits ``D ≈ k·w1_l + b`` along a sequence: how far the disparity
+    paths are from straight."""
+    res = []
+    d = pd.DataFrame({"row": df["row"].to_numpy(), "col": df["col"].to_numpy(), "w1": df["wl1"].to_numpy(),
+                      "D": np.asarray(disparity)})
+    for _, g in d.groupby(["row", "col"]):
+        if len(g) >= MIN_POSITIONS:
+            k, b = np.polyfit(g["w1"], g["D"], 1)
+            res.append(g["D"] - (k * g["w1"] + b))
+    return float(np.sqrt(np.mean(np.concatenate(res) ** 2))) if res else float("nan")
+
+
+def fit_disparity_paper(xseq: pd.DataFrame) -> DisparityCorrection:
+    """The paper's procedure: per-point lines along the X paths, one quadratic through all their residuals;
+    the sign that straightens the paths is kept (Eqs 13–16)."""
+    d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
+    w = xseq["wl1"].to_numpy()
+    res = np.full(len(xseq), np.nan)
+    for _, idx in xseq.groupby(["row", "col"]).indices.items():
+        if len(idx) >= MIN_POSITIONS:
+            k, b = np.polyfit(w[idx], d0[idx], 1)
+            res[idx] = d0[idx] - (k * w[idx] + b)
+    ok = np.isfinite(res)
+    if ok.sum() < 3:
+        raise SlmlabError("too few X-sequence samples to fit the disparity distortion (§4, Eq 15)")
+    aD, bD, cD = np.polyfit(w[ok], res[ok], 2)
+    plus = DisparityCorrection(float(aD), float(bD), float(cD), "paper")
+    minus = DisparityCorrection(-float(aD), -float(bD), -float(cD), "paper")
+    s_plus = path_straightness(xseq, plus.apply(d0, w))
+    s_minus = path_straightness(xseq, minus.apply(d0, w))
+    return plus if s_plus <= s_minus else minus
+
+
+def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
+    """The identifiable joint fit ``D0 = d[i,j] + aD·w1² + bD·w1`` (one constant per grid point)."""
+    d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
+    w = xseq["wl1"].to_numpy()
+    keys = xseq[["row", "col"]].to_numpy()
+    _, point = np.unique(keys, axis=0, return_inverse=True)
+    point = point.ravel()
+    n_pts = point.max() + 1
+    w0 = np.mean(w)  # centre w1 for conditioning; undone below
+    m = np.zeros((len(w), n_pts + 2))
+    m[np.arange(len(w)), point] = 1.0
+    m[:, n_pts] = (w - w0) ** 2
+    m[:, n_pts + 1] = w - w0
+    coef, *_ = np.linalg.lstsq(m, d0, rcond=None)
+    a, b1 = coef[n_pts], coef[n_pts + 1]
+    # a (w - w0)^2 + b1 (w - w0) = a w^2 + (b1 - 2 a w0) w + const (the constant goes to the d[i,j])
+    return DisparityCorrection(float(a), float(b1 - 2 * a * w0), 0.0, "joint")
+
+
+@dataclass
+class AlignmentResult:
+    """§4's parameters and diagnostics.
+
+    Attributes
+    ----------
+    alpha_rad, alpha_std_rad
+        rotation of the right view and its spread over grid points [rad].
+    dw2_px, dw2_by_sequence, dw2_std_px
+        vertical offset of the right view [px], per sequence, and the spread of ``w2_l − w2_r`` [px].
+    disparity
+        ``{'paper': DisparityCorrection, 'joint': DisparityCorrection}``.
+    straightness
+        RMS of the per-point disparity lines along X [px]: ``raw``, ``paper``, ``joint``.
+    """
+
+    alpha_rad: float
+    alpha_std_rad: float
+    dw2_px: float
+    dw2_by_sequence: dict
+    dw2_std_px: float
+    disparity: dict
+    straightness: dict = field(default_factory=dict)
+
+    def align(self, w: np.ndarray) -> np.ndarray:
+        """Rotate the right view by α and shift it by δw2 (``(n, 4)`` corrected coordinates → aligned)."""
+        w = np.array(w, float)
+        w[:, 2], w[:, 3] = rotate(w[:, 2], w[:, 3], self.alpha_rad)
+        w[:, 3] += self.dw2_px
+        return w
+
+    def parameters(self) -> dict:
+        d = self.disparity["paper"]
+        return {"alpha_deg": float(np.degrees(self.alpha_rad)), "dw2_px": self.dw2_px, "aD": d.aD, "bD": d.bD,
+                "cD_px": d.cD_px}
+
+    def table(self) -> pd.DataFrame:
+        """Table 2 layout: α, δw2, aD, bD, cD by the paper's procedure, and the joint fit's aD, bD."""
+        p, j = self.disparity["paper"], self.disparity["joint"]
+        return pd.DataFrame([
+            {"parameter": "alpha_deg", "value": np.degrees(self.alpha_rad), "spread": np.degrees(self.alpha_std_rad)},
+            {"parameter": "dw2_px", "value": self.dw2_px, "spread": self.dw2_std_px},
+            {"parameter": "aD", "value": p.aD, "spread": np.nan},
+            {"parameter": "bD", "value": p.bD, "spread": np.nan},
+            {"parameter": "cD_px", "value": p.cD_px, "spread": np.nan},
+            {"parameter": "aD (joint fit)", "value": j.aD, "spread": np.nan},
+            {"parameter": "bD (joint fit)", "value": j.bD, "spread": np.nan},
+        ])
+
+
+def estimate_alignment(cal: CalibrationSet, correct) -> AlignmentResult:
+    """§4 on a calibration set: ``correct`` is §3's correction ``(n, 4) → (n, 4)``."""
+    seqs = {s: sequence_coordinates(cal, s, correct) for s in ("X", "Y", "Z")}
+    if len(seqs["X"]) == 0:
+        raise SlmlabError("the calibration set has no X sequence seen in both views: §4 needs one", cal.path)
+    alpha, alpha_std, _ = estimate_alpha(seqs["X"])
+    rotated = {}
+    for s, df in seqs.items():
+        df = df.copy()
+        df["wr1"], df["wr2"] = rotate(df["wr1"], df["wr2"], alpha)
+        rotated[s] = df
+    dw2, per, dw2_std = estimate_dw2(rotated)
+    xs = rotated["X"].copy()
+    xs["wr2"] += dw2
+    paper = fit_disparity_paper(xs)
+    joint = fit_disparity_joint(xs)
+    d0, w = (xs["wr1"] - xs["wl1"]).to_numpy(), xs["wl1"].to_numpy()
+    straight = {"raw": path_straightness(xs, d0), "paper": path_straightness(xs, paper.apply(d0, w)),
+                "joint": path_straightness(xs, joint.apply(d0, w))}
+    return AlignmentResult(alpha, alpha_std, dw2, per, dw2_std, {"paper": paper, "joint": joint}, straight)
