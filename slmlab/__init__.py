@@ -21,6 +21,8 @@ from .models import Model, available_models, calibrate, default_model_name, load
 from .simulate import (PAPER_TESTS, PRESETS, Session, paper_test, preset, simulate_set,  # noqa: E402
                        validation_session)
 from .paths import figures_dir, notebook_size, paper_reference, savefig, savetable  # noqa: E402
+from . import paper_models  # noqa: E402,F401  (registers paper-m0, paper-m1, paper-m2)
+from .evaluation import evaluate  # noqa: E402
 
 __all__ = [
     "__version__", "SlmlabError",
@@ -28,5 +30,5 @@ __all__ = [
     "Microscope", "Optics", "View", "Stage", "Plate", "CentroidNoise",
     "Model", "available_models", "calibrate", "default_model_name", "load_model",
     "PRESETS", "PAPER_TESTS", "Session", "preset", "paper_test", "validation_session", "simulate_set",
-    "figures_dir", "notebook_size", "paper_reference", "savefig", "savetable",
+    "figures_dir", "notebook_size", "paper_reference", "savefig", "savetable", "evaluate",
 ]

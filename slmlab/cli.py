@@ -154,10 +154,17 @@ def _evaluate(a) -> int:
     from .io import read_set
     from .models import load_model
 
-    load_model(a.model)
-    read_set(a.cal_dir)
-    raise SlmlabError("evaluation (residual elements, RA1-RA5, S coefficients) is not implemented yet; "
-                      "it arrives with the §5-§6 issue")
+    import json
+
+    from .evaluation import evaluate
+
+    model = load_model(a.model)
+    cal = read_set(a.cal_dir)
+    for note in cal.notes:
+        print(f"note: {note}", file=sys.stderr)
+    ev = evaluate(model, cal)
+    print(json.dumps(ev.as_json(), indent=2) if a.json else ev.text())
+    return 0
 
 
 def _bench(a) -> int:
