@@ -27,7 +27,8 @@ from .errors import SlmlabError
 from .io import CalibrationSet
 
 __all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "fit_disparity_paper",
-           "fit_disparity_joint", "path_straightness", "AlignmentResult", "estimate_alignment", "sequence_coordinates"]
+           "fit_disparity_joint", "path_straightness", "AlignmentResult", "estimate_alignment", "sequence_coordinates",
+           "disparity_table"]
 
 MIN_POSITIONS = 3
 
@@ -230,3 +231,20 @@ def estimate_alignment(cal: CalibrationSet, correct) -> AlignmentResult:
     straight = {"raw": path_straightness(xs, d0), "paper": path_straightness(xs, paper.apply(d0, w)),
                 "joint": path_straightness(xs, joint.apply(d0, w))}
     return AlignmentResult(alpha, alpha_std, dw2, per, dw2_std, {"paper": paper, "joint": joint}, straight)
+
+
+def disparity_table(cal: CalibrationSet, correct, align: AlignmentResult, sequences=("X", "Y")) -> pd.DataFrame:
+    """Per sample of the sequences: ``w1_l, w2_l`` [px] of the aligned coordinates, the distorted disparity
+    ``D0`` and the corrected ``D_paper``, ``D_joint`` [px] (Figs 7–8)."""
+    frames = []
+    for s in sequences:
+        df = sequence_coordinates(cal, s, correct)
+        if df.empty:
+            continue
+        w = align.align(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
+        d0 = w[:, 2] - w[:, 0]
+        frames.append(pd.DataFrame({
+            "sequence": s, "position": df["position"].to_numpy(), "row": df["row"].to_numpy(),
+            "col": df["col"].to_numpy(), "w1_l": w[:, 0], "w2_l": w[:, 1], "D0": d0,
+            "D_paper": align.disparity["paper"].apply(d0, w[:, 0]), "D_joint": align.disparity["joint"].apply(d0, w[:, 0])}))
+    return pd.concat(frames, ignore_index=True)

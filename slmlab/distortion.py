@@ -35,7 +35,7 @@ from .errors import SlmlabError
 
 __all__ = ["ViewCorrection", "DistortionResult", "display_rows", "display_columns", "row_lines", "column_residuals",
            "estimate_two_step", "estimate_joint", "lattice_misfit", "quality", "estimate_distortion",
-           "virtual_line_spacing"]
+           "virtual_line_spacing", "table1", "display_frames"]
 
 MIN_DOTS_PER_LINE = 3
 
@@ -188,19 +188,33 @@ def virtual_line_spacing(i, w1, w2, rows=(1, 2, 3, 4, 5), w1_px=None) -> pd.Data
 
 
 # -------------------------------------------------------------------------------------- display transform
-def display_rows(i, j, w1, w2, spacing_px: float) -> pd.DataFrame:
-    """Eq 1: each row ``i`` as ``(w1, w2 − w2[i, first] + i·s)`` (deformations made visible, Fig 4a–b).
-    The first dot of the row with a coordinate stands in for ``[i, 1]`` when that one is missing."""
-    df = pd.DataFrame({"row": i, "col": j, "w1": w1, "w2": w2})[_valid(w1, w2)].sort_values(["row", "col"])
-    first = df.groupby("row")["w2"].transform("first")
-    return df.assign(x=df["w1"], y=df["w2"] - first + df["row"] * spacing_px)
+def _display(df: pd.DataFrame, line: str, along: str, across: str, spacing_px: float, reference: str):
+    df = df.sort_values([line, "col" if line == "row" else "row"])
+    g = df.groupby(line)
+    if reference == "first":
+        base = g[across].transform("first")
+    elif reference == "chord":  # the straight line through the line's first and last dots
+        a0, a1 = g[along].transform("first"), g[along].transform("last")
+        b0, b1 = g[across].transform("first"), g[across].transform("last")
+        base = b0 + (b1 - b0) * (df[along] - a0) / (a1 - a0).where(a1 != a0, 1.0)
+    else:
+        raise ValueError(f"reference must be 'first' or 'chord', not {reference!r}")
+    return df.assign(x=df[along], y=df[across] - base + df[line] * spacing_px)
 
 
-def display_columns(i, j, w1, w2, spacing_px: float) -> pd.DataFrame:
-    """Eq 2: each column ``j`` as ``(w2, w1 − w1[first, j] + j·s)`` (Fig 4c–d)."""
-    df = pd.DataFrame({"row": i, "col": j, "w1": w1, "w2": w2})[_valid(w1, w2)].sort_values(["col", "row"])
-    first = df.groupby("col")["w1"].transform("first")
-    return df.assign(x=df["w2"], y=df["w1"] - first + df["col"] * spacing_px)
+def display_rows(i, j, w1, w2, spacing_px: float, reference: str = "first") -> pd.DataFrame:
+    """Eq 1: each row ``i`` as ``(w1, w2 − w2[i, 1] + i·s)`` (deformations made visible, Fig 4a–b).
+
+    The first dot of the row stands in for ``[i, 1]`` when that one is missing. ``reference='chord'``
+    subtracts the line through the row's end dots instead (shows bending hidden by a tilt)."""
+    df = pd.DataFrame({"row": i, "col": j, "w1": w1, "w2": w2})[_valid(w1, w2)]
+    return _display(df, "row", "w1", "w2", spacing_px, reference)
+
+
+def display_columns(i, j, w1, w2, spacing_px: float, reference: str = "first") -> pd.DataFrame:
+    """Eq 2: each column ``j`` as ``(w2, w1 − w1[1, j] + j·s)`` (Fig 4c–d); see :func:`display_rows`."""
+    df = pd.DataFrame({"row": i, "col": j, "w1": w1, "w2": w2})[_valid(w1, w2)]
+    return _display(df, "col", "w2", "w1", spacing_px, reference)
 
 
 # -------------------------------------------------------------------------------------- both views
@@ -273,3 +287,44 @@ def estimate_distortion(grid: pd.DataFrame) -> DistortionResult:
     q = pd.DataFrame(qual)
     misfit = q[q["stage"] != "raw"].groupby("stage")["lattice_rms_px"].sum()
     return DistortionResult(estimates, str(misfit.idxmin()), q)
+
+
+def table1(result: DistortionResult, noise_free: DistortionResult | None = None, microscope=None) -> pd.DataFrame:
+    """Table 1: Φ per view, ours (the chosen estimator and the paper's two-step) next to the paper's values,
+    with the estimate on noise-free centres and, from the simulator's optics, the first-order values
+    ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them."""
+    from .paths import paper_reference
+
+    ref = paper_reference("table1")
+    rows = []
+    for side, name in (("l", "left"), ("r", "right")):
+        for par, attr in (("lambda", "lam"), ("a", "a"), ("b", "b"), ("c", "c")):
+            row = {"view": name, "parameter": par, "paper": ref[name][par],
+                   "ours": getattr(result.view(side), attr),
+                   "ours_two_step": getattr(result.estimates["paper-two-step"][side], attr)}
+            if noise_free is not None:
+                row["noise_free"] = getattr(noise_free.view(side), attr)
+            if microscope is not None:
+                v, px = microscope.optics.view(side), microscope.optics.pixel_mm / microscope.optics.view(side).magnification_ratio
+                first = {"lambda": 2 * v.decentring_per_mm * px, "a": (v.decentring_per_mm + v.thin_prism_per_mm) * px}
+                row["first_order_physics"] = first.get(par, np.nan)
+            rows.append(row)
+    df = pd.DataFrame(rows)
+    df["ours_vs_paper_percent"] = 100 * (df["ours"] / df["paper"] - 1)
+    return df
+
+
+def display_frames(grid: pd.DataFrame, result: DistortionResult | None = None, spacing_px: float = 20.0,
+                   column_spacing_px: float = 3.0, column_reference: str = "chord") -> dict:
+    """The display transform of both views' rows and columns (Figs 4 and 6), raw or corrected by
+    ``result``: ``{('rows'|'cols', 'l'|'r'): DataFrame with x, y}``. Columns use their own spacing and,
+    by default, the chord reference: their bend (a pixel or two) is otherwise hidden by the cameras' tilt."""
+    out = {}
+    i, j = grid["row"].to_numpy(), grid["col"].to_numpy()
+    for side in "lr":
+        w1, w2 = grid[f"w{side}1"].to_numpy(float), grid[f"w{side}2"].to_numpy(float)
+        if result is not None:
+            w1, w2 = result.view(side).apply(w1, w2)
+        out[("rows", side)] = display_rows(i, j, w1, w2, spacing_px)
+        out[("cols", side)] = display_columns(i, j, w1, w2, column_spacing_px, column_reference)
+    return out

@@ -14,7 +14,8 @@ from .microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
            "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
-           "plot_dots_on_image"]
+           "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
+           "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -237,3 +238,141 @@ def plot_dots_on_image(image, table, ax=None, *, title: str = "", reduce: int = 
     ax.set_ylabel("w2 [px]")
     ax.set_title(title, fontsize=10)
     return ax
+
+
+# ------------------------------------------------------------------------------------------ §3–§6 figures
+def plot_display(df, ax=None, *, by: str = "row", title: str = "", xlabel: str = "", ylabel: str = ""):
+    """Lines of the display transform (Eqs 1–2, Figs 4 and 6): one polyline per ``by`` group of ``x, y``."""
+    ax = _ax(ax)
+    other = "col" if by == "row" else "row"
+    for _, g in df.groupby(by):
+        g = g.sort_values(other)
+        ax.plot(g["x"], g["y"], ".-", ms=1.5, lw=0.5, color="tab:red" if by == "row" else "tab:blue")
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.tick_params(labelsize=7)
+    return ax
+
+
+def plot_display_quad(frames: dict, axes=None, *, suptitle: str = ""):
+    """The four panels of Fig 4 / Fig 6: rows and columns of the left and right images.
+    ``frames`` maps ``('rows'|'cols', 'l'|'r')`` to display-transformed DataFrames."""
+    if axes is None:
+        fig, axes = new_figure(2, 2, width_in=9.0, height_in=7.0)
+    letters = iter("abcd")
+    for r, kind in enumerate(("rows", "cols")):
+        for c, side in enumerate("lr"):
+            name = f"({next(letters)}) {kind[:-1] if kind == 'rows' else 'column'}s of grid points, {'left' if side == 'l' else 'right'} image"
+            plot_display(frames[(kind, side)], axes[r, c], by="row" if kind == "rows" else "col", title=name,
+                         xlabel="w1 [px]" if kind == "rows" else "w2 [px]",
+                         ylabel="w2 − w2[i,1] + i·s [px]" if kind == "rows" else "w1 − chord + j·s [px]")
+    if suptitle:
+        axes[0, 0].figure.suptitle(suptitle, fontsize=10)
+    return axes
+
+
+def plot_virtual_lines(df, ax=None):
+    """Fig 5: the spacing ``L_{k→1}`` between row lines (through the origin) and the first one, against ``w1``."""
+    ax = _ax(ax)
+    for c in df.columns[1:]:
+        k = c.split("_")[1]
+        ax.plot(df["w1_px"], df[c], label=f"L$_{{{k}\\to 1}}$")
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("spacing of the row lines' slopes × w1 [px]")
+    ax.set_title("Spacing of virtual lines (rows through the origin), left image", fontsize=10)
+    ax.legend(fontsize=7)
+    return ax
+
+
+def plot_disparity(table, axes=None, *, column: str = "D0", fits: dict | None = None, title: str = ""):
+    """Figs 7–8: disparity against ``w1`` along the X sequence (a) and against ``w2`` along the Y sequence (b).
+
+    ``fits`` maps a label to a function ``w1 → D`` drawn over panel (a) (the fitted parabolas)."""
+    if axes is None:
+        _, axes = new_figure(1, 2, width_in=10.0, height_in=3.8)
+    x = table[table["sequence"] == "X"]
+    y = table[table["sequence"] == "Y"]
+    axes[0].scatter(x["w1_l"], x[column], s=1.5, c=x["row"] * 10 + x["col"], cmap="viridis", rasterized=True)
+    for label, fn in (fits or {}).items():
+        w = np.linspace(x["w1_l"].min(), x["w1_l"].max(), 200)
+        axes[0].plot(w, fn(w), lw=1.2, label=label)
+    if fits:
+        axes[0].legend(fontsize=7)
+    axes[0].set_xlabel("w1 (left) [px]")
+    axes[0].set_ylabel(f"{column} [px]")
+    axes[0].set_title("(a) X sequence: disparity against w1", fontsize=9)
+    if len(y):
+        axes[1].scatter(y["w2_l"], y[column], s=1.5, c=y["row"] * 10 + y["col"], cmap="viridis", rasterized=True)
+    axes[1].set_xlabel("w2 (left) [px]")
+    axes[1].set_title("(b) Y sequence: disparity against w2", fontsize=9)
+    if title:
+        axes[0].figure.suptitle(title, fontsize=10)
+    return axes
+
+
+def plot_dz_vs_dd(samples, ez_mm_per_px: float, ax=None):
+    """Fig 10: the stage's ``ΔZ_A`` against the disparity increment ``ΔD``, with the line ``ΔZ = EZ·ΔD``."""
+    ax = _ax(ax)
+    ax.plot(samples["dD_px"], samples["dZ_A_mm"], ".", ms=2, color="tab:blue", label="Z-sequence samples")
+    d = np.linspace(samples["dD_px"].min(), samples["dD_px"].max(), 2)
+    ax.plot(d, ez_mm_per_px * d, "-", color="tab:red", lw=1, label=f"ΔZ = EZ·ΔD, EZ = {ez_mm_per_px:.5f} mm/px")
+    ax.set_xlabel("disparity increment ΔD [px]")
+    ax.set_ylabel("stage displacement ΔZ_A [mm]")
+    ax.legend(fontsize=7)
+    ax.set_title("Depth is linear in the disparity increment", fontsize=10)
+    return ax
+
+
+def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str = ""):
+    """Figs 12 and 16: S coefficients [%] over RA1–RA5 as bars, one panel per sequence (X, Y, Z), the
+    paper's reported values marked (``reference``: ``{element: {interval: percent}}``)."""
+    if axes is None:
+        _, axes = new_figure(1, 3, width_in=12.0, height_in=3.6, sharey=True)
+    intervals = list(s_table.columns)
+    xs = np.arange(len(intervals))
+    width = 0.26
+    colours = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue"}
+    for ax, seq in zip(axes, "XYZ"):
+        for k, comp in enumerate("XYZ"):
+            el = seq + comp
+            if el not in s_table.index:
+                continue
+            ax.bar(xs + (k - 1) * width, s_table.loc[el].to_numpy(), width, color=colours[comp], label=f"S$_{{{seq}{comp}}}$")
+            for ra, val in ((reference or {}).get(el) or {}).items():
+                if ra in intervals:
+                    i = intervals.index(ra)
+                    ax.plot(xs[i] + (k - 1) * width, val, "k_", ms=12, mew=2)
+        ax.axhline(95, color="0.4", ls="--", lw=0.8)
+        ax.set_xticks(xs, intervals)
+        ax.set_ylim(0, 105)
+        ax.set_title(f"({'abc'['XYZ'.index(seq)]}) {seq} sequence", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+    axes[0].set_ylabel("S [%]  (black: paper)")
+    if title:
+        axes[0].figure.suptitle(title, fontsize=10)
+    return axes
+
+
+def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, title: str = "", ylim_mm: float | None = None):
+    """Figs 13–15 and 17: the nine residual elements against the displacement along the sequence's axis,
+    3 × 3 panels (rows: X, Y, Z sequences; columns: X, Y, Z components), the ±interval (RA3) drawn."""
+    if axes is None:
+        _, axes = new_figure(3, 3, width_in=10.0, height_in=8.0, sharex="row")
+    for r, seq in enumerate("XYZ"):
+        d = res[res["sequence"] == seq]
+        for c, comp in enumerate("XYZ"):
+            ax = axes[r, c]
+            ax.plot(d["displacement_mm"], 1e3 * d[f"E_{comp}"], ".", ms=1.2, color="tab:blue", rasterized=True)
+            ax.axhline(1e3 * interval_mm, color="tab:red", lw=0.8, ls="--")
+            ax.axhline(-1e3 * interval_mm, color="tab:red", lw=0.8, ls="--")
+            if ylim_mm is not None:
+                ax.set_ylim(-1e3 * ylim_mm, 1e3 * ylim_mm)
+            ax.set_title(f"E$_{{{seq},{comp}}}$", fontsize=9)
+            ax.tick_params(labelsize=7)
+            if c == 0:
+                ax.set_ylabel("residual [µm]", fontsize=8)
+            ax.set_xlabel(f"Δ{seq} [mm]", fontsize=8)
+    if title:
+        axes[0, 0].figure.suptitle(title, fontsize=10)
+    return axes
