@@ -206,3 +206,11 @@ def test_evaluate_skips_rows_with_missing_dots(set_dir):
     pts.loc[pts.index[::7], "wr1"] = np.nan
     ev = slmlab.evaluate(model, slmlab.CalibrationSet(pts, cal.meta))
     assert ev.summary["samples"].sum() < slmlab.evaluate(model, cal).summary["samples"].sum()
+
+
+def test_fast_reconstruction_equals_the_stepwise_chain(paper_set):
+    params, _, _ = fit_paper(paper_set)
+    w = paper_set.points[["wl1", "wl2", "wr1", "wr2"]].dropna().to_numpy()
+    for level in (0, 1, 2):
+        np.testing.assert_allclose(params.reconstruct(w, level, chunk=1000), params.reconstruct_stepwise(w, level),
+                                   rtol=0, atol=1e-12)

@@ -92,16 +92,6 @@ def test_cli_simulate_validation_and_other_tests(tmp_path):
     assert slmlab.read_set(tmp_path / "t5").points.groupby("sequence")["position"].nunique()["X"] == 9
 
 
-def test_cli_calibrate_without_any_model_says_so(tmp_path, set_dir):
-    import slmlab
-
-    if slmlab.available_models():
-        pytest.skip("models are registered")
-    r = run_cli("calibrate", str(set_dir), "--out", str(tmp_path / "m.json"))
-    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no vision model" in r.stderr
-    assert not (tmp_path / "m.json").exists()
-
-
 def test_unknown_preset_and_bad_test_are_user_errors(tmp_path):
     r = run_cli("simulate", str(tmp_path / "x"), "--preset", "nope")
     assert r.returncode == 2 and "unknown preset" in r.stderr and r.stderr.count("\n") == 1
