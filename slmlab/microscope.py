@@ -152,8 +152,6 @@ class Stage:
         standard deviation of the random positioning error per axis and move [µm].
     travel_mm
         reference travel for the straightness bow [mm].
-    origin_mm
-        microscope-frame position of stage zero [mm]; ``None`` lets the session place it.
     """
 
     rotation_deg: float = 0.0

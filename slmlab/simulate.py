@@ -65,7 +65,7 @@ from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, CalibrationSet
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 
-__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper",
+__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper", "tilted_session",
            "stage_origin"]
 
 # --------------------------------------------------------------------------------------------- presets
@@ -153,12 +153,17 @@ class Session:
         whether the static pair of the 27 × 29 plate (the ``grid`` sequence) is included.
     name
         a label for reports.
+    tilt_poses_deg
+        poses ``(tilt about x, tilt about y)`` [degree] of the 7 × 7 plate held by hand at the centre stage
+        position, as a Halcon or OpenCV user calibrates: the sequence ``T`` (its stage columns are the
+        centre position; the tilt is not a stage move).
     """
 
     step_mm: float | tuple[float, float, float] = 0.1
     positions: tuple[int, int, int] = (42, 30, 32)
     grid: bool = True
     name: str = "test1"
+    tilt_poses_deg: tuple[tuple[float, float], ...] = ()
 
     @property
     def steps_mm(self) -> np.ndarray:
@@ -183,9 +188,13 @@ class Session:
         if self.grid:
             out["grid"] = c[None, :]
         for axis, (n, sign) in enumerate(zip(self.positions, (-1.0, 1.0, -1.0))):
+            if n == 0:
+                continue
             s = np.repeat(c[None, :], n, axis=0)
             s[:, axis] = sign * self.steps_mm[axis] * np.arange(n)
             out["XYZ"[axis]] = s
+        if self.tilt_poses_deg:
+            out["T"] = np.repeat(c[None, :], len(self.tilt_poses_deg), axis=0)
         return out
 
 
@@ -214,6 +223,26 @@ def validation_session() -> Session:
     not a multiple of 0.1 mm, so Z takes 0.075 mm (31 positions, close to Test 1's 32).
     """
     return Session(step_mm=(0.1, 0.1, 0.075), positions=(42, 30, 31), grid=False, name="validation")
+
+
+def tilted_session(n_poses: int = 16, max_tilt_deg: float = 20.0, *, with_sequences: Session | None = None,
+                   seed: int = 0) -> Session:
+    """A session in which the 7 × 7 plate is also held at ``n_poses`` tilts (sequence ``T``), about both axes,
+    up to ``max_tilt_deg`` (the plate stays within the depth of field), besides the axis sequences of
+    ``with_sequences`` (default: Test 1) that map the cameras to the stage."""
+    rng = np.random.default_rng(seed)
+    ang = rng.uniform(0, 2 * np.pi, n_poses)
+    mag = max_tilt_deg * np.sqrt(rng.uniform(0.3, 1.0, n_poses))
+    poses = tuple((float(m * np.cos(a)), float(m * np.sin(a))) for m, a in zip(mag, ang))
+    base = with_sequences or paper_test(1)
+    return replace(base, tilt_poses_deg=poses, name=f"{base.name}+tilted")
+
+
+def _tilt(tx_deg: float, ty_deg: float) -> np.ndarray:
+    a, b = np.radians(tx_deg), np.radians(ty_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    return ry @ rx
 
 
 def stage_origin(microscope: Microscope, session: Session) -> np.ndarray:
@@ -268,7 +297,11 @@ def simulate_set(microscope: Microscope | None = None, session: Session | None =
         actual = microscope.stage.actual(commanded, stage_rng)
         centre = microscope.stage_to_microscope(actual, origin)  # plate centre per position
         n_pos, n_dot = len(commanded), len(i)
-        p = (centre[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+        if seq == "T":  # the plate held at a tilt about its centre
+            per_pose = np.stack([offsets @ _tilt(*pose).T for pose in session.tilt_poses_deg])
+            p = (centre[:, None, :] + per_pose).reshape(-1, 3)
+        else:
+            p = (centre[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
         w_true = microscope.project(p)
         sigma = microscope.noise.sigma_px(p[:, 2], o.depth_of_field_mm)
         w = w_true + noise_rng.normal(size=w_true.shape) * sigma[:, None]
@@ -302,8 +335,9 @@ def simulate_set(microscope: Microscope | None = None, session: Session | None =
                   f"session {session.name}, seed {seed}",
         "simulator": {
             "microscope": microscope.as_dict(),
-            "session": {"name": session.name, "step_mm": [float(v) for v in session.steps_mm], "positions": list(session.positions),
-                        "grid": session.grid},
+            "session": {"name": session.name, "step_mm": [float(v) for v in session.steps_mm],
+                        "positions": list(session.positions), "grid": session.grid,
+                        "tilt_poses_deg": [list(p) for p in session.tilt_poses_deg]},
             "seed": int(seed),
             "stage_origin_mm": [float(v) for v in origin],
         },

@@ -1,0 +1,303 @@
+"""The traditional pinhole stereo model (paper §6.3, Fig 17), with OpenCV standing in for Halcon.
+
+A Halcon or OpenCV user treats every image of the 7 × 7 plate as a view of a planar target with known dot
+coordinates: ``cv2.calibrateCamera`` per camera, then ``cv2.stereoCalibrate`` for the pair. Points are then
+undistorted and triangulated (``cv2.undistortPoints``, ``cv2.triangulatePoints``) in the left camera's
+frame, and mapped into the stage frame by a map fitted on the calibration set's stage moves.
+
+Why a CMO microscope is hard for it
+-----------------------------------
+* Each view projects onto a plane parallel to the focal plane from a centre about ``L·tan(γ/2)`` off the
+  objective axis: as a pinhole camera its principal point lies thousands of pixels outside the image, and its
+  distortion is centred on the objective axis, not on that principal point. OpenCV's polynomial distortion,
+  centred on the principal point it estimates, has to approximate it.
+* The working distance is long (weak perspective): focal length and distance trade off; with fronto-parallel
+  views only (a stage that translates the plate) they are barely separable. We start from a sensible guess
+  (``f = L / pixel``), keep it as a guess, and report the conditioning (the standard deviation of ``f``).
+
+Distortion variants (recorded in the model file): ``standard`` (k1, k2, p1, p2, k3), ``rational`` (+ k4–k6),
+``thin-prism`` (+ s1–s4), ``tilted`` (+ τx, τy). By default the one with the smallest displacement error on
+held-back stage positions of the calibration set is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .io import CalibrationSet
+from .models import Model, register
+from .vision import displacements
+
+__all__ = ["VARIANTS", "STAGE_MAPS", "StereoPinhole", "plate_views", "calibrate_stereo", "fit_stage_map",
+           "PinholeModel", "chessboard_views"]
+
+VARIANTS = {
+    "standard": 0,
+    "rational": cv2.CALIB_RATIONAL_MODEL,
+    "thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+    "tilted": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL | cv2.CALIB_TILTED_MODEL,
+}
+STAGE_MAPS = ("affine", "rigid")
+MIN_DOTS = 12
+
+
+@dataclass
+class StereoPinhole:
+    """A calibrated stereo pinhole pair (left camera frame), OpenCV conventions; lengths in the target's
+    units (mm for plates)."""
+
+    K1: np.ndarray
+    d1: np.ndarray
+    K2: np.ndarray
+    d2: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    rms_px: float
+    variant: str
+    f_std_px: tuple[float, float] = (np.nan, np.nan)
+    stereo_option: str = ""
+
+    def triangulate(self, w: np.ndarray) -> np.ndarray:
+        """Left-camera-frame points ``(n, 3)`` of image quadruples ``(n, 4)`` [px]."""
+        w = np.asarray(w, float)
+        ul = cv2.undistortPoints(w[:, None, 0:2], self.K1, self.d1).reshape(-1, 2)
+        ur = cv2.undistortPoints(w[:, None, 2:4], self.K2, self.d2).reshape(-1, 2)
+        p1 = np.hstack([np.eye(3), np.zeros((3, 1))])
+        p2 = np.hstack([self.R, self.T.reshape(3, 1)])
+        x = cv2.triangulatePoints(p1, p2, ul.T, ur.T)
+        return (x[:3] / x[3]).T
+
+    def as_dict(self) -> dict:
+        return {"K1": self.K1.tolist(), "d1": self.d1.ravel().tolist(), "K2": self.K2.tolist(),
+                "d2": self.d2.ravel().tolist(), "R": self.R.tolist(), "T": self.T.ravel().tolist(),
+                "rms_px": self.rms_px, "variant": self.variant, "f_std_px": list(self.f_std_px),
+                "stereo_option": self.stereo_option}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "StereoPinhole":
+        a = lambda k: np.asarray(d[k], float)  # noqa: E731
+        return cls(a("K1"), a("d1"), a("K2"), a("d2"), a("R"), a("T"), float(d["rms_px"]), str(d["variant"]),
+                   tuple(d.get("f_std_px", (np.nan, np.nan))), str(d.get("stereo_option", "")))
+
+
+def plate_views(cal: CalibrationSet, sequences=("X", "Y", "Z", "T"), max_views: int | None = 24) -> list[dict]:
+    """One planar-target view per (sequence, position) with at least 12 dots seen in both images: object
+    points ``(col−1)·pitch, (row−1)·pitch, 0`` [mm] and the two images' points [px]. At most ``max_views``,
+    evenly spread over the positions (a Halcon user calibrates from a few dozen images, not a hundred
+    near-identical ones)."""
+    views = []
+    for seq in sequences:
+        df = cal.sequence(seq)
+        if df.empty:
+            continue
+        pitch = float(cal.plate(seq)["pitch_mm"])
+        for pos, g in df.groupby("position"):
+            g = g[g[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+            if len(g) < MIN_DOTS:
+                continue
+            obj = np.column_stack([(g["col"] - 1) * pitch, (g["row"] - 1) * pitch, np.zeros(len(g))])
+            views.append({"sequence": seq, "position": int(pos), "obj": obj.astype(np.float32),
+                          "l": g[["wl1", "wl2"]].to_numpy(np.float32), "r": g[["wr1", "wr2"]].to_numpy(np.float32)})
+    if max_views is not None and len(views) > max_views:
+        keep = np.unique(np.round(np.linspace(0, len(views) - 1, max_views)).astype(int))
+        views = [views[k] for k in keep]
+    return views
+
+
+def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: str = "standard", *,
+                     f_guess_px: float | None = None, fix_focal: bool = False) -> StereoPinhole:
+    """``cv2.calibrateCamera`` per camera (with an intrinsic guess), then ``cv2.stereoCalibrate`` (intrinsics
+    fixed). ``f_guess_px``: the initial focal length (default: the image width); ``fix_focal`` keeps it."""
+    if variant not in VARIANTS:
+        raise SlmlabError(f"unknown pinhole distortion variant {variant!r}; use one of {', '.join(VARIANTS)}")
+    if len(views) < 3:
+        raise SlmlabError(f"only {len(views)} usable plate views (>= {MIN_DOTS} dots in both images); "
+                          "the pinhole model needs at least 3")
+    w, h = image_size
+    f = f_guess_px or float(w)
+    k0 = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | VARIANTS[variant] | (cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0)
+    # near-telecentric: normalised coordinates span only about ±0.01, so the distortion terms' gradients are
+    # tiny and OpenCV's ε test stops before the first step; iterate a fixed number of times instead
+    crit = (cv2.TERM_CRITERIA_COUNT, 100, 0.0)
+    obj = [v["obj"] for v in views]
+    out = {}
+    for side in "lr":
+        pts = [v[side] for v in views]
+        rms, K, d, _, _, std_in, _, _ = cv2.calibrateCameraExtended(obj, pts, (w, h), k0.copy(), None,
+                                                                      flags=flags, criteria=crit)
+        out[side] = (K, d, float(std_in[0, 0]))
+    # the relative pose of two near-telecentric views is poorly conditioned and OpenCV's stereoCalibrate
+    # takes no extrinsic guess: try its refinement options and keep the lowest RMS (recorded)
+    best = best_refined = None
+    options = {"fixed intrinsics": cv2.CALIB_FIX_INTRINSIC,
+               "refined intrinsics, focal fixed": cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_FOCAL_LENGTH}
+    tries = {"fixed intrinsics": [("100 iterations", crit)],
+             "refined intrinsics, focal fixed": [("until converged", (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-9))]}
+    for name, fl in options.items():
+        for c_name, c in tries[name]:
+            try:
+                # copies: OpenCV writes refined intrinsics into these arrays in place
+                res = cv2.stereoCalibrate(obj, [v["l"] for v in views], [v["r"] for v in views], out["l"][0].copy(),
+                                          out["l"][1].copy(), out["r"][0].copy(), out["r"][1].copy(), (w, h),
+                                          flags=fl | VARIANTS[variant], criteria=c)
+            except cv2.error:
+                continue
+            if np.isfinite(res[0]) and (best is None or res[0] < best[0][0]):
+                best = (res, f"{name}, {c_name}")
+            if "refined" in name and np.isfinite(res[0]) and (best_refined is None or res[0] < best_refined[0][0]):
+                best_refined = (res, f"{name}, {c_name}")
+    # and a two-stage recipe: the stereo-refined intrinsics of the best refining option, then a fixed-intrinsics solve
+    if best_refined is not None:
+        r0 = best_refined[0]
+        try:
+            res = cv2.stereoCalibrate(obj, [v["l"] for v in views], [v["r"] for v in views], r0[1].copy(), r0[2].copy(),
+                                      r0[3].copy(), r0[4].copy(), (w, h), flags=cv2.CALIB_FIX_INTRINSIC | VARIANTS[variant],
+                                      criteria=crit)
+            if np.isfinite(res[0]) and (best is None or res[0] <= best[0][0]):
+                best = (res, f"{best_refined[1]}, then fixed intrinsics")
+        except cv2.error:
+            pass
+    if best is None:
+        raise SlmlabError("OpenCV's stereoCalibrate failed on these views")
+    (rms, K1, d1, K2, d2, R, T, _, _), how = best
+    return StereoPinhole(K1, d1, K2, d2, R, T, float(rms), variant, (out["l"][2], out["r"][2]), how)
+
+
+def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affine"):
+    """The map ``stage = A · camera + t`` fitted on the axis sequences' displacements (``affine``: any 3 × 3
+    ``A``, absorbing the stage's skew and scale errors; ``rigid``: a rotation). ``t`` puts the X sequence's
+    first plate centre at its commanded stage position (an arbitrary but fixed origin)."""
+    if kind not in STAGE_MAPS:
+        raise SlmlabError(f"unknown stage map {kind!r}; use one of {', '.join(STAGE_MAPS)}")
+    dps, das = [], []
+    for seq in ("X", "Y", "Z"):
+        df = cal.sequence(seq)
+        df = df[df[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+        if df["position"].nunique() < 2:
+            continue
+        p = stereo.triangulate(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
+        dp, da, _ = displacements(df, p)
+        dps.append(dp)
+        das.append(da)
+    if not dps:
+        raise SlmlabError("the pinhole model needs X, Y or Z sequences (stage moves) to map the cameras to the stage")
+    dp, da = np.vstack(dps), np.vstack(das)
+    if kind == "affine":
+        a = np.linalg.lstsq(dp, da, rcond=None)[0].T
+    else:
+        u, _, vt = np.linalg.svd(dp.T @ da)
+        a = (u @ np.diag([1, 1, np.sign(np.linalg.det(u @ vt))]) @ vt).T
+    x1 = cal.sequence("X")
+    x1 = x1[(x1["position"] == x1["position"].min()) & x1[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+    centre = stereo.triangulate(x1[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)).mean(axis=0)
+    t = x1[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].to_numpy(float)[0] - a @ centre
+    return a, t
+
+
+def _held_back_error(cal: CalibrationSet, variant: str, f_guess: float) -> float:
+    """RMS displacement error [mm] on every 3rd stage position, the rest used to calibrate."""
+    pts = cal.points
+    held = pts["sequence"].isin(["X", "Y", "Z"]) & (pts["position"] % 3 == 0)
+    train = CalibrationSet(pts[~held].reset_index(drop=True), cal.meta)
+    test_pts = pts[held | (pts["position"] == 1)].reset_index(drop=True)
+    stereo = calibrate_stereo(plate_views(train), train.image_size_px, variant, f_guess_px=f_guess)
+    a, t = fit_stage_map(train, stereo)
+    errs = []
+    for seq in ("X", "Y", "Z"):
+        df = test_pts[(test_pts["sequence"] == seq) & test_pts[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+        if df["position"].nunique() < 2:
+            continue
+        p = stereo.triangulate(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)) @ a.T
+        dp, da, _ = displacements(df, p)
+        errs.append(dp - da)
+    return float(np.sqrt(np.mean(np.vstack(errs) ** 2)))
+
+
+@register
+class PinholeModel(Model):
+    """The traditional pinhole stereo model, calibrated with OpenCV from the plate views of a set."""
+
+    name = "pinhole"
+    summary = "traditional stereo pinhole model (OpenCV calibrateCamera + stereoCalibrate, triangulation, stage map)"
+    accuracy_rank = 50
+    units = {"K1": "px", "K2": "px", "T": "mm", "R": "-", "A": "-", "t": "mm"}
+
+    def __init__(self, stereo: StereoPinhole, a: np.ndarray, t: np.ndarray, **kw):
+        super().__init__(**kw)
+        self.stereo, self.a, self.t = stereo, np.asarray(a, float), np.asarray(t, float)
+
+    @classmethod
+    def fit(cls, cal: CalibrationSet, *, variant: str | None = None, stage_map: str = "affine",
+            views_from: tuple[str, ...] | None = None, fix_focal: bool = False, f_guess_px: float | None = None, **_):
+        """``variant`` ``None`` chooses by held-back positions; ``views_from`` the sequences used as target
+        views (default: ``T`` if the set has tilted poses, else X, Y, Z); ``f_guess_px`` defaults to
+        ``L / pixel`` of a CMO microscope with a 300 mm perspective distance and 3 µm pixels."""
+        f_guess = f_guess_px or 1e5
+        if views_from is None:
+            views_from = ("T",) if not cal.sequence("T").empty else ("X", "Y", "Z")
+        scores = {}
+        if variant is None:
+            if views_from != ("X", "Y", "Z"):
+                variant = "standard"
+            else:
+                for v in VARIANTS:
+                    try:
+                        scores[v] = _held_back_error(cal, v, f_guess)
+                    except cv2.error:
+                        scores[v] = float("inf")
+                variant = min(scores, key=scores.get)
+        stereo = calibrate_stereo(plate_views(cal, views_from), cal.image_size_px, variant, f_guess_px=f_guess,
+                                  fix_focal=fix_focal)
+        a, t = fit_stage_map(cal, stereo, stage_map)
+        return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": list(views_from),
+                                          "fix_focal": fix_focal, "f_guess_px": f_guess},
+                   calibration={"held_back_rms_mm": scores, "stereo_rms_px": stereo.rms_px,
+                                "stereo_option": stereo.stereo_option,
+                                "focal_px": [float(stereo.K1[0, 0]), float(stereo.K2[0, 0])],
+                                "focal_std_px": list(stereo.f_std_px),
+                                "focal_relative_std": [float(s / stereo.K1[0, 0]) for s in stereo.f_std_px]})
+
+    def reconstruct(self, w: np.ndarray) -> np.ndarray:
+        return self.stereo.triangulate(np.atleast_2d(w)) @ self.a.T + self.t
+
+    def parameters_dict(self) -> dict:
+        return {**self.stereo.as_dict(), "A": self.a.tolist(), "t": self.t.tolist()}
+
+    @classmethod
+    def from_parameters(cls, parameters, calibration, options):
+        return cls(StereoPinhole.from_dict(parameters), parameters["A"], parameters["t"], calibration=calibration,
+                   options=options)
+
+
+def chessboard_views(pairs: list[tuple[str, str]], pattern=(9, 6), square: float = 1.0) -> tuple[list[dict], tuple]:
+    """Planar views from stereo chessboard images (OpenCV's sample): inner corners by
+    ``cv2.findChessboardCorners`` refined by ``cv2.cornerSubPix``; pairs where either view fails are skipped."""
+    from .extract import read_image
+
+    objp = np.zeros((pattern[0] * pattern[1], 3), np.float32)
+    objp[:, :2] = np.mgrid[0:pattern[0], 0:pattern[1]].T.reshape(-1, 2) * square
+    views, size = [], None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+    for left, right in pairs:
+        pts = {}
+        for side, path in (("l", left), ("r", right)):
+            img = read_image(path)
+            size = (img.shape[1], img.shape[0])
+            ok, c = cv2.findChessboardCorners(img, pattern)
+            if not ok:
+                break
+            pts[side] = cv2.cornerSubPix(img, c, (11, 11), (-1, -1), crit).reshape(-1, 2)
+        if len(pts) == 2:
+            views.append({"sequence": "chessboard", "position": len(views) + 1, "obj": objp, **pts})
+    return views, size
+
+
+def views_table(views: list[dict]) -> pd.DataFrame:
+    """How many points each view has (for reports)."""
+    return pd.DataFrame([{"sequence": v["sequence"], "position": v["position"], "points": len(v["obj"])} for v in views])
