@@ -1,6 +1,6 @@
 """The command line (DATA_FORMAT.md): ``python -m slmlab VERB ...``.
 
-Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``bench``.
+Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``grip``, ``bench``.
 Every error a user can cause ends with exit status 2 and one line on stderr; outputs are written
 atomically.
 """
@@ -62,6 +62,11 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("model", type=Path)
     v.add_argument("cal_dir", type=Path)
     v.add_argument("--json", action="store_true")
+
+    gr = sub.add_parser("grip", help="one micro-gripping episode on the virtual microscope (paper §2)")
+    gr.add_argument("--seed", type=int, default=0)
+    gr.add_argument("--model", default=None, help="vision model (default: the most accurate)")
+    gr.add_argument("--json", action="store_true", help="print the result as one JSON line (last)")
 
     b = sub.add_parser("bench", help="speed benchmarks beside the field's reference implementations")
     b.add_argument("--json", action="store_true")
@@ -167,6 +172,24 @@ def _evaluate(a) -> int:
     return 0
 
 
+def _grip(a) -> int:
+    import json
+
+    from .gripping import grip
+    from .models import default_model_name, get_model_class
+
+    name = a.model or default_model_name()
+    get_model_class(name)  # unknown names are a user error before any work
+    ep = grip(a.seed, name)
+    d = {"model": name, "seed": a.seed, **ep.as_dict()}
+    if not a.json:
+        print(f"model {name}, seed {a.seed}: {'gripped' if ep.gripped else 'NOT gripped'} after {ep.iterations} looks; "
+              f"final offset {ep.final_offset_um:.2f} um; reconstruction errors tip {ep.tip_error_um:.2f} um, "
+              f"gripping position {ep.target_error_um:.2f} um; released {ep.pad_offset_um:.2f} um from the pad centre")
+    print(json.dumps(d))
+    return 0
+
+
 def _bench(a) -> int:
     from .bench import run
 
@@ -174,7 +197,7 @@ def _bench(a) -> int:
 
 
 VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibrate": _calibrate,
-         "reconstruct": _reconstruct, "evaluate": _evaluate, "bench": _bench}
+         "reconstruct": _reconstruct, "evaluate": _evaluate, "grip": _grip, "bench": _bench}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,8 @@ from .microscope import Microscope
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
            "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
            "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
-           "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels"]
+           "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
+           "plot_trajectory"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -376,3 +377,67 @@ def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, title: st
     if title:
         axes[0, 0].figure.suptitle(title, fontsize=10)
     return axes
+
+
+# ------------------------------------------------------------------------------------------ §2 figures
+def plot_scene_side(scene, ax=None):
+    """Fig 1a: side view (x–z) of the gripping scene: hub, the wire's cross-section, the gripper's jaws
+    straddling it (above and below), the pad [mm]."""
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    ax = _ax(ax)
+    g = scene.grip_point()
+    r = scene.wire_diameter_mm / 2
+    ax.add_patch(Rectangle((scene.hub_centre_mm[0] - scene.hub_radius_mm, g[2] - 0.15), 2 * scene.hub_radius_mm, 0.3,
+                           color="0.35", label="object hub"))
+    ax.add_patch(Circle((g[0], g[2]), r, color="#b87333", label="copper wire (Ø 100 µm)"))
+    for sgn in (1, -1):
+        y = g[2] + sgn * (r + 0.01)
+        ax.add_patch(Polygon([(g[0] - 0.02, y), (g[0] + 0.6, y + sgn * 0.12), (g[0] + 2.0, y + sgn * 0.12),
+                              (g[0] + 2.0, y + sgn * 0.02)], closed=True, color="0.1",
+                             label="gripper jaws" if sgn > 0 else None))
+    p = scene.pad_centre_mm
+    ax.add_patch(Rectangle((p[0] - scene.pad_size_mm / 2, p[2] - 0.2), scene.pad_size_mm, 0.2, color="0.6", label="pad"))
+    ax.set_xlim(min(scene.hub_centre_mm[0], p[0]) - 0.6, g[0] + 2.1)
+    ax.set_ylim(g[2] - 0.6, g[2] + 0.6)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("z [mm]")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("(a) side view", fontsize=10)
+    return ax
+
+
+def plot_located(image, tip_px, grip_px, line, ax=None, *, title: str = "", half_px: int = 450):
+    """An image of the gripping scene with the located tip (red) and the wire's centreline and gripping
+    position (cyan) marked, cropped around them."""
+    ax = _ax(ax)
+    c = (np.asarray(tip_px) + np.asarray(grip_px)) / 2
+    x0, y0 = int(max(c[0] - half_px, 0)), int(max(c[1] - half_px, 0))
+    crop = image[y0:y0 + 2 * half_px, x0:x0 + 2 * half_px]
+    ax.imshow(crop, cmap="gray", vmin=0, vmax=255, extent=(x0 - 0.5, x0 + crop.shape[1] - 0.5, y0 + crop.shape[0] - 0.5, y0 - 0.5))
+    mu, d = line
+    t = np.array([-400, 400])
+    ax.plot(mu[0] + t * d[0], mu[1] + t * d[1], "-", color="tab:cyan", lw=0.8, label="wire centreline")
+    ax.plot(*grip_px, "o", mfc="none", mec="tab:cyan", ms=9, label="gripping position")
+    ax.plot(*tip_px, "+", color="tab:red", ms=12, mew=2, label="gripper tip")
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, loc="lower left")
+    return ax
+
+
+def plot_trajectory(trajectory_mm, target_mm, ax=None):
+    """The gripper tip's path over the look-and-move iterations, in the x–y plane, with the target."""
+    ax = _ax(ax)
+    t = np.asarray(trajectory_mm)
+    ax.plot(t[:-1, 0], t[:-1, 1], "o-", ms=4, color="tab:red", label="tip after each move")
+    ax.plot(t[-2:, 0], t[-2:, 1], "--", color="0.5", label="drag to the pad")
+    ax.plot(target_mm[0], target_mm[1], "x", color="tab:cyan", ms=10, mew=2, label="gripping position")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=7)
+    ax.set_title("(c) the loop's trajectory", fontsize=10)
+    return ax

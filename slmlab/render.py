@@ -29,7 +29,8 @@ from .errors import SlmlabError
 from .io import CalibrationSet, atomic_write_bytes
 from .microscope import Microscope, Plate, from_dict
 
-__all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png"]
+__all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png",
+           "expose"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -118,11 +119,19 @@ def render_view(microscope: Microscope, points_mm: np.ndarray, plate: Plate, sid
             if xa < xb and ya < yb:
                 dots[ya:yb, xa:xb] += patch[ya - y0:yb - y0, xa - x0:xb - x0]
     np.minimum(dots, 1.0, out=dots)
-    gain = im.full_well_e / 255.0  # e- per DN
-    signal = _illumination(width, height, im.vignetting) * np.float32(im.background_dn * gain)
-    signal *= 1.0 - np.float32(1.0 - im.dot_dn / im.background_dn) * dots
+    reflectance = 1.0 - np.float32(1.0 - im.dot_dn / im.background_dn) * dots
+    return expose(reflectance, im, rng)
+
+
+def expose(reflectance: np.ndarray, imaging, rng: np.random.Generator) -> np.ndarray:
+    """8-bit image of a scene's relative reflectance (1: the bright background) [-]: illumination with
+    vignetting, shot noise (Gaussian with the Poisson variance), read noise, quantisation."""
+    height, width = reflectance.shape
+    gain = imaging.full_well_e / 255.0  # e- per DN
+    signal = _illumination(width, height, imaging.vignetting) * np.float32(imaging.background_dn * gain)
+    signal = signal * reflectance.astype(np.float32, copy=False)
     noise = rng.standard_normal((height, width), dtype=np.float32)
-    signal += noise * np.sqrt(signal + np.float32(im.read_noise_e ** 2))
+    signal += noise * np.sqrt(signal + np.float32(imaging.read_noise_e ** 2))
     signal *= np.float32(1.0 / gain)
     return np.clip(np.rint(signal), 0, 255).astype(np.uint8)
 
