@@ -134,6 +134,12 @@ def _calibrate(a) -> int:
     model.save(a.out)
     for note in cal.notes:
         print(f"note: {note}", file=sys.stderr)
+    suspects = model.calibration.get("suspect_rows") or []
+    if suspects:
+        shown = ", ".join(f"{q['sequence']} position {q['position']} dot [{q['row']},{q['col']}] "
+                          f"({1e3 * q['residual_mm']:.0f} um)" for q in suspects[:5])
+        print(f"note: {len(suspects)} row(s) look misindexed or mismatched (kept; listed in the model file under "
+              f"calibration.suspect_rows): {shown}{' ...' if len(suspects) > 5 else ''}", file=sys.stderr)
     print(f"wrote {a.out} (model {model.name})")
     return 0
 
@@ -202,6 +208,9 @@ VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibra
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit status (0 success, 2 user error)."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # our errors are one line; OpenCV's are not
     args = _parser().parse_args(argv)
     try:
         return VERBS[args.verb](args)

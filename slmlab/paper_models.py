@@ -8,7 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from .models import Model, register
-from .vision import PaperParameters, fit_paper
+from .vision import PaperParameters, fit_paper, suspect_rows
 
 __all__ = ["PaperModel", "PaperM0", "PaperM1", "PaperM2"]
 
@@ -41,11 +41,14 @@ class PaperModel(Model):
         params, dist, align = fit_paper(cal, level=cls.level, scale_estimator=scale_estimator,
                                         distortion_method=distortion_method, disparity_method=disparity_method)
         q = dist.quality
+        suspects = suspect_rows(cal, params)
         return cls(params, options={"scale_estimator": scale_estimator, "distortion_method": dist.chosen,
                                     "disparity_method": disparity_method},
                    calibration={
                        "distortion_lattice_rms_px": {f"{r.view}/{r.stage}": r.lattice_rms_px for r in q.itertuples()},
                        "disparity_path_straightness_px": align.straightness,
+                       "suspect_rows": [{"sequence": q_[0], "position": q_[1], "row": q_[2], "col": q_[3],
+                                         "residual_mm": q_[4]} for q_ in suspects],
                    })
 
     def reconstruct(self, w: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from .distortion import DistortionResult, ViewCorrection, estimate_distortion
 from .errors import SlmlabError
 from .io import CalibrationSet
 
-__all__ = ["SCALE_ESTIMATORS", "PaperParameters", "fit_paper", "displacements", "COMPENSATION_NAMES"]
+__all__ = ["SCALE_ESTIMATORS", "PaperParameters", "fit_paper", "displacements", "COMPENSATION_NAMES", "suspect_rows"]
 
 SCALE_ESTIMATORS = ("mean-ratio", "lstsq")
 COMPENSATION_NAMES = ("KYX", "BYX_mm", "KYZ", "BYZ_mm", "KZX", "BZX_mm", "KZY", "BZY_mm")
@@ -255,3 +255,21 @@ def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "me
         K["KZY"], K["BZY_mm"] = _line(dp[:, 2], da[:, 1] - dp[:, 1])
     params.K = K
     return params, dist, align
+
+
+def suspect_rows(cal: CalibrationSet, params: PaperParameters, *, k: float = 8.0, floor_mm: float = 0.02) -> list:
+    """Rows whose displacement residual under the fitted model is far out of line with the rest: larger than
+    ``k`` robust standard deviations (MAD) of their sequence and than ``floor_mm`` — typically misindexed or
+    mismatched dots. Returns ``[(sequence, position, row, col, residual_mm), ...]``."""
+    out = []
+    for s in ("X", "Y", "Z"):
+        df = sequence_coordinates(cal, s)
+        if df["position"].nunique() < 2:
+            continue
+        dp, da, keep = displacements(df, params.reconstruct(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)))
+        e = np.linalg.norm(dp - da, axis=1)
+        mad = 1.4826 * np.median(np.abs(e - np.median(e)))
+        bad = e > max(np.median(e) + k * mad, floor_mm)
+        rows = df[keep][bad]
+        out += [(s, int(r.position), int(r.row), int(r.col), float(v)) for r, v in zip(rows.itertuples(), e[bad])]
+    return out
