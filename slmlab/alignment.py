@@ -25,6 +25,7 @@ import pandas as pd
 
 from .errors import SlmlabError
 from .io import CalibrationSet
+from .linefit import group_lines, point_keys
 
 __all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "fit_disparity_paper",
            "fit_disparity_joint", "path_straightness", "AlignmentResult", "estimate_alignment", "sequence_coordinates",
@@ -53,11 +54,10 @@ def sequence_coordinates(cal: CalibrationSet, sequence: str, correct=None) -> pd
 def path_angles(df: pd.DataFrame, c1: str, c2: str) -> pd.Series:
     """Angle [rad] of each grid point's path: ``atan`` of the least-squares slope of ``c2`` on ``c1`` over the
     positions (Eq 7), for grid points seen at ≥ 3 positions; indexed by ``(row, col)``."""
-    out = {}
-    for key, g in df.groupby(["row", "col"]):
-        if len(g) >= MIN_POSITIONS and np.ptp(g[c1]) > 0:
-            out[key] = np.arctan(np.polyfit(g[c1], g[c2], 1)[0])
-    return pd.Series(out, dtype=float)
+    fit = group_lines(point_keys(df["row"], df["col"]), df[c1].to_numpy(), df[c2].to_numpy(), min_n=MIN_POSITIONS)
+    lab = fit.labels[fit.valid]
+    index = pd.MultiIndex.from_arrays([lab // 100_000, lab % 100_000], names=["row", "col"])
+    return pd.Series(np.arctan(fit.k[fit.valid]), index=index, dtype=float)
 
 
 def estimate_alpha(xseq: pd.DataFrame) -> tuple[float, float, int]:
@@ -111,14 +111,10 @@ class DisparityCorrection:
 def path_straightness(df: pd.DataFrame, disparity: np.ndarray) -> float:
     """RMS [px] of the per-grid-point line fits ``D ≈ k·w1_l + b`` along a sequence: how far the disparity
     paths are from straight."""
-    res = []
-    d = pd.DataFrame({"row": df["row"].to_numpy(), "col": df["col"].to_numpy(), "w1": df["wl1"].to_numpy(),
-                      "D": np.asarray(disparity)})
-    for _, g in d.groupby(["row", "col"]):
-        if len(g) >= MIN_POSITIONS:
-            k, b = np.polyfit(g["w1"], g["D"], 1)
-            res.append(g["D"] - (k * g["w1"] + b))
-    return float(np.sqrt(np.mean(np.concatenate(res) ** 2))) if res else float("nan")
+    fit = group_lines(point_keys(df["row"], df["col"]), df["wl1"].to_numpy(), np.asarray(disparity, float),
+                      min_n=MIN_POSITIONS)
+    r = fit.residuals[np.isfinite(fit.residuals)]
+    return float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan")
 
 
 def fit_disparity_paper(xseq: pd.DataFrame) -> DisparityCorrection:
@@ -126,11 +122,7 @@ def fit_disparity_paper(xseq: pd.DataFrame) -> DisparityCorrection:
     the sign that straightens the paths is kept (Eqs 13–16)."""
     d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
     w = xseq["wl1"].to_numpy()
-    res = np.full(len(xseq), np.nan)
-    for _, idx in xseq.groupby(["row", "col"]).indices.items():
-        if len(idx) >= MIN_POSITIONS:
-            k, b = np.polyfit(w[idx], d0[idx], 1)
-            res[idx] = d0[idx] - (k * w[idx] + b)
+    res = group_lines(point_keys(xseq["row"], xseq["col"]), w, d0, min_n=MIN_POSITIONS).residuals
     ok = np.isfinite(res)
     if ok.sum() < 3:
         raise SlmlabError("too few X-sequence samples to fit the disparity distortion (§4, Eq 15)")

@@ -32,6 +32,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 from .errors import SlmlabError
+from .linefit import group_lines
 
 __all__ = ["ViewCorrection", "DistortionResult", "display_rows", "display_columns", "row_lines", "column_residuals",
            "estimate_two_step", "estimate_joint", "lattice_misfit", "quality", "estimate_distortion",
@@ -77,13 +78,10 @@ def _valid(*arrays):
 
 def row_lines(i, w1, w2) -> pd.DataFrame:
     """Least-squares line ``w2 = k·w1 + b`` of every row with at least 3 dots: ``row, k, b, n``."""
-    df = pd.DataFrame({"i": i, "w1": w1, "w2": w2})[_valid(w1, w2)]
-    out = []
-    for r, g in df.groupby("i"):
-        if len(g) >= MIN_DOTS_PER_LINE:
-            k, b = np.polyfit(g["w1"], g["w2"], 1)
-            out.append((r, k, b, len(g)))
-    return pd.DataFrame(out, columns=["row", "k", "b", "n"])
+    ok = _valid(w1, w2)
+    fit = group_lines(np.asarray(i)[ok], np.asarray(w1, float)[ok], np.asarray(w2, float)[ok], min_n=MIN_DOTS_PER_LINE)
+    v = fit.valid
+    return pd.DataFrame({"row": fit.labels[v], "k": fit.k[v], "b": fit.b[v], "n": fit.n[v]})
 
 
 def column_residuals(j, w1, w2) -> np.ndarray:
@@ -92,11 +90,8 @@ def column_residuals(j, w1, w2) -> np.ndarray:
     j, w1, w2 = np.asarray(j), np.asarray(w1, float), np.asarray(w2, float)
     e = np.full(len(j), np.nan)
     ok = _valid(w1, w2)
-    for col in np.unique(j[ok]):
-        sel = ok & (j == col)
-        if sel.sum() >= MIN_DOTS_PER_LINE:
-            k, b = np.polyfit(w2[sel], w1[sel], 1)
-            e[sel] = k * w2[sel] + b - w1[sel]
+    if ok.any():
+        e[ok] = -group_lines(j[ok], w2[ok], w1[ok], min_n=MIN_DOTS_PER_LINE).residuals
     return e
 
 
