@@ -192,7 +192,20 @@ def _bench_paper_models() -> list[BenchLine]:
     ]
 
 
-BENCHES = [_bench_simulate, _bench_render, _bench_extract, _bench_paper_models]
+def _bench_explorer() -> list[BenchLine]:
+    from .explore import explore_microscope, explore_models
+
+    lines = []
+    for name, make in (("virtual microscope", explore_microscope), ("paper models", explore_models)):
+        box = make()
+        box.update()
+        ours = best_time(box.update, repeat=3)
+        lines.append(BenchLine(f"one explorer update: {name} (compute + redraw + PNG)", ours,
+                               "(no reference)", float("nan"), "<= 150 ms", ours <= 0.15))
+    return lines
+
+
+BENCHES = [_bench_simulate, _bench_render, _bench_extract, _bench_paper_models, _bench_explorer]
 
 
 def machine() -> str:

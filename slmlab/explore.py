@@ -1,0 +1,294 @@
+"""Interactive exploration with ipywidgets: turn the microscope's and the method's knobs, see the paper's
+figures respond.
+
+Three explorers, each a function returning its widget (a ``VBox``); the computing behind each is a plain
+function (:func:`microscope_state`, :func:`model_state`, :func:`step_state`) that tests call directly.
+
+* Sliders update on release (``continuous_update=False``): one recomputation per gesture, the ipywidgets way
+  of debouncing a drag.
+* Figures are ``matplotlib.figure.Figure`` objects (not pyplot: nothing leaks into global state), redrawn in
+  place and shown as PNG in an ``Image`` widget, so the explorers work in JupyterLab, in a headless kernel
+  and in plain Python alike.
+* Every widget box carries ``state`` (the last computed result), ``controls`` (name → widget) and
+  ``update()`` (recompute and redraw now), for driving them programmatically.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from functools import lru_cache
+from io import BytesIO
+
+import numpy as np
+import pandas as pd
+
+from .alignment import disparity_table, estimate_alignment
+from .distortion import estimate_distortion
+from .evaluation import RESIDUAL_INTERVALS_MM, evaluate
+from .simulate import Session, paper_test, preset, simulate_set, validation_session
+from .study import TABLE4_NAMES
+
+__all__ = ["microscope_state", "model_state", "step_state", "explore_microscope", "explore_models", "explore_steps",
+           "draw_microscope", "draw_models", "draw_steps"]
+
+
+# ------------------------------------------------------------------------------------------ helpers
+def _figure(width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    # a fixed layout: constrained layout would be re-solved on every redraw (most of an update's time)
+    fig = Figure(figsize=(width_in, height_in))
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.1, top=0.92, wspace=0.35, hspace=0.55)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _png(fig) -> bytes:
+    buf = BytesIO()
+    fig.savefig(buf, format="png", dpi=72)
+    return buf.getvalue()
+
+
+def _box(controls: dict, compute, draw, fig, title: str):
+    """Assemble controls, a status line and the figure image; wire the observers."""
+    import ipywidgets as W
+
+    image = W.Image(format="png")
+    status = W.HTML()
+    box = W.VBox([W.HTML(f"<b>{title}</b>"), W.HBox(list(controls.values()), layout=W.Layout(flex_flow="row wrap")),
+                  status, image])
+    box.controls, box.figure = controls, fig
+
+    def update(*_):
+        t0 = time.perf_counter()
+        box.state = compute(**{k: c.value for k, c in controls.items()})
+        draw(box.state, fig)
+        image.value = _png(fig)
+        box.last_update_s = time.perf_counter() - t0
+        status.value = f"<small>updated in {1e3 * box.last_update_s:.0f} ms</small>"
+
+    for c in controls.values():
+        c.observe(update, names="value")
+    box.update = update
+    update()
+    return box
+
+
+# ------------------------------------------------------------------------------------------ 1: the microscope
+def microscope_state(*, convergence_deg: float = 13.69, perspective_mm: float = 300.0, distortion_scale: float = 1.0,
+                     stage_skew: float = 0.00528, stage_tilt: float = -0.01404, centroid_noise_px: float = 0.02,
+                     positioning_noise_um: float = 0.3, seed: int = 1, session: Session | None = None) -> dict:
+    """Simulate a set with the given knobs and run §3–§4 on it.
+
+    Returns ``cal``, ``distortion``, ``alignment``, ``disparity`` (the X sequence's disparities) and
+    ``table``: Table 1–2 estimates beside what the simulator's optics imply to first order.
+    """
+    m = preset("paper")
+    o = m.optics
+    views = [replace(v, decentring_per_mm=distortion_scale * v.decentring_per_mm,
+                     thin_prism_per_mm=distortion_scale * v.thin_prism_per_mm) for v in (o.left, o.right)]
+    m = replace(m, optics=replace(o, convergence_deg=convergence_deg, perspective_distance_mm=perspective_mm,
+                                  left=views[0], right=views[1]),
+                stage=replace(m.stage, y_skew=stage_skew, y_tilt=stage_tilt, positioning_noise_um=positioning_noise_um),
+                noise=replace(m.noise, in_focus_px=centroid_noise_px, at_dof_edge_px=2.5 * centroid_noise_px))
+    cal = simulate_set(m, session or paper_test(5), seed=seed)
+    dist = estimate_distortion(cal.sequence("grid"))
+    align = estimate_alignment(cal, dist.apply)
+    px = o.pixel_mm
+    rows = []
+    for side in "lr":
+        v = m.optics.view(side)
+        rows.append((f"lambda_{side}", dist.view(side).lam, 2 * v.decentring_per_mm * px))
+        rows.append((f"a_{side}", dist.view(side).a, (v.decentring_per_mm + v.thin_prism_per_mm) * px))
+    l = m.optics.left
+    rows += [("alpha_deg", float(np.degrees(align.alpha_rad)), m.optics.left.rotation_deg - m.optics.right.rotation_deg),
+             ("dw2_px", align.dw2_px, np.nan),
+             ("aD (paper procedure)", align.disparity["paper"].aD, np.nan),
+             ("aD (joint fit)", align.disparity["joint"].aD, 2 * (3 * l.decentring_per_mm + l.thin_prism_per_mm) * px)]
+    table = pd.DataFrame(rows, columns=["parameter", "estimate", "simulator_first_order"])
+    return {"microscope": m, "cal": cal, "distortion": dist, "alignment": align,
+            "disparity": disparity_table(cal, dist.apply, align, sequences=("X",)), "table": table}
+
+
+def draw_microscope(state: dict, fig) -> None:
+    """Left: the dots' image-plane tracks (left view); right: the X sequence's disparity parabola."""
+    fig.clear()
+    a, b = fig.subplots(1, 2)
+    cal = state["cal"]
+    for s, colour in (("X", "tab:red"), ("Y", "tab:green"), ("Z", "tab:blue")):
+        d = cal.sequence(s)
+        d = d[(d["row"] % 3 == 1) & (d["col"] % 3 == 1)]
+        for _, g in d.groupby(["row", "col"]):
+            a.plot(g["wl1"], g["wl2"], "-", lw=0.8, color=colour)
+    w, h = cal.image_size_px
+    a.set_xlim(0, w)
+    a.set_ylim(h, 0)
+    a.set_aspect("equal")
+    a.set_title("image-plane tracks (left view)", fontsize=9)
+    d = state["disparity"]
+    b.plot(d["w1_l"], d["D0"], ",", color="tab:purple")
+    j = state["alignment"].disparity["joint"]
+    ww = np.linspace(d["w1_l"].min(), d["w1_l"].max(), 100)
+    level = np.mean(d["D0"] - (j.aD * d["w1_l"] ** 2 + j.bD * d["w1_l"]))
+    b.plot(ww, level + j.aD * ww ** 2 + j.bD * ww, "k-", lw=1)
+    b.set_xlabel("w1 [px]")
+    b.set_ylabel("disparity D0 [px]")
+    b.set_title("disparity along X (joint-fit parabola)", fontsize=9)
+
+
+def explore_microscope(**defaults):
+    """The virtual microscope's knobs; live: image-plane tracks, the disparity parabola, Table 1–2 estimates
+    beside the simulator's first-order values (under the figure, in ``box.table``)."""
+    import ipywidgets as W
+
+    def slider(cls, value, lo, hi, step, desc):
+        return cls(value=defaults.get(desc, value), min=lo, max=hi, step=step, description=desc,
+                   continuous_update=False, style={"description_width": "initial"})
+    controls = {
+        "convergence_deg": slider(W.FloatSlider, 13.69, 8.0, 20.0, 0.1, "convergence_deg"),
+        "perspective_mm": slider(W.FloatSlider, 300.0, 50.0, 1000.0, 10.0, "perspective_mm"),
+        "distortion_scale": slider(W.FloatSlider, 1.0, 0.0, 3.0, 0.1, "distortion_scale"),
+        "stage_skew": slider(W.FloatSlider, 0.00528, -0.02, 0.02, 0.0005, "stage_skew"),
+        "stage_tilt": slider(W.FloatSlider, -0.01404, -0.04, 0.04, 0.001, "stage_tilt"),
+        "centroid_noise_px": slider(W.FloatSlider, 0.02, 0.0, 0.2, 0.005, "centroid_noise_px"),
+        "positioning_noise_um": slider(W.FloatSlider, 0.3, 0.0, 3.0, 0.1, "positioning_noise_um"),
+    }
+    table = W.HTML()
+
+    def draw(state, fig):
+        draw_microscope(state, fig)
+        table.value = state["table"].to_html(index=False, float_format=lambda v: f"{v:.4g}")
+    box = _box(controls, microscope_state, draw, _figure(10, 4), "The virtual microscope (§3–§4 on a Test 5 set)")
+    box.children = (*box.children, table)
+    box.table = table
+    return box
+
+
+# ------------------------------------------------------------------------------------------ 2: the models
+@lru_cache(maxsize=4)
+def _model_sets(seed: int):
+    m = preset("paper")
+    return simulate_set(m, paper_test(1), seed=seed), simulate_set(m, validation_session(), seed=seed + 100)
+
+
+@lru_cache(maxsize=16)
+def _evaluation(model: str, seed: int):
+    from .models import calibrate, default_model_name
+
+    cal, val = _model_sets(seed)
+    name = default_model_name() if model == "default" else model
+    options = {"variant": "standard"} if name == "pinhole" else {}
+    return evaluate(calibrate(cal, name, **options), val)
+
+
+def model_state(*, model: str = "paper-m2", interval: str = "RA3", seed: int = 1) -> dict:
+    """Evaluation of one model (calibrated on Test 1, validated on a fresh run; cached) at one interval:
+    ``residuals``, ``s`` (S coefficients) and ``interval_mm``."""
+    ev = _evaluation(model, seed)
+    return {"model": model, "residuals": ev.residuals, "s": ev.s, "interval": interval,
+            "interval_mm": RESIDUAL_INTERVALS_MM[interval], "requirement": ev.requirement}
+
+
+def draw_models(state: dict, fig) -> None:
+    """3 × 3 residual panels (Figs 13–15 style) with ±interval, and S at the interval (Figs 12/16 style).
+
+    The axes are made once; later calls only update the artists' data (most of an update's time otherwise)."""
+    from matplotlib.ticker import MaxNLocator
+
+    res, a = state["residuals"], state["interval_mm"]
+    art = getattr(fig, "_slmlab_artists", None)
+    if art is None:
+        gs = fig.add_gridspec(3, 4)
+        art = {"panels": {}, "bars": {}}
+        for r, seq in enumerate("XYZ"):
+            for c, comp in enumerate("XYZ"):
+                ax = fig.add_subplot(gs[r, c])
+                line, = ax.plot([], [], ",", color="tab:blue")
+                hi = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
+                lo = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
+                ax.set_title(f"E{seq}{comp} [µm]", fontsize=8)
+                ax.tick_params(labelsize=6, labelleft=(c == 0))
+                ax.xaxis.set_major_locator(MaxNLocator(3))
+                ax.yaxis.set_major_locator(MaxNLocator(4))
+                art["panels"][seq + comp] = (ax, line, hi, lo)
+            ax = fig.add_subplot(gs[r, 3])
+            bars = ax.bar(range(3), [0, 0, 0], color=["tab:red", "tab:green", "tab:blue"])
+            ax.axhline(95, color="0.4", ls="--", lw=0.8)
+            ax.set_xticks(range(3), [f"S{seq}{c}" for c in "XYZ"], fontsize=7)
+            ax.set_ylim(0, 105)
+            ax.tick_params(labelsize=6)
+            art["bars"][seq] = (ax, bars)
+        fig._slmlab_artists = art
+    for el, (ax, line, hi, lo) in art["panels"].items():
+        d = res[res["sequence"] == el[0]]
+        y = 1e3 * d[f"E_{el[1]}"].to_numpy()
+        line.set_data(d["displacement_mm"].to_numpy(), y)
+        hi.set_ydata([1e3 * a, 1e3 * a])
+        lo.set_ydata([-1e3 * a, -1e3 * a])
+        top = max(float(np.abs(y).max()) if len(y) else 0.0, 1e3 * a) * 1.1
+        x = d["displacement_mm"].to_numpy()
+        if len(x):
+            ax.set_xlim(min(x.min(), 0), max(x.max(), 0) + 1e-9)
+        ax.set_ylim(-top, top)
+    s = state["s"]
+    for seq, (ax, bars) in art["bars"].items():
+        for bar, comp in zip(bars, "XYZ"):
+            bar.set_height(s.loc[seq + comp, state["interval"]] if seq + comp in s.index else 0)
+        ax.set_title(f"S at {state['interval']} [%]", fontsize=8)
+    fig.suptitle(f"{state['model']}: residual elements and S coefficients", fontsize=9)
+
+
+def explore_models(**defaults):
+    """Model level (0, 1, 2, pinhole, default) and residual interval; live: the nine residual elements and
+    the S coefficients."""
+    import ipywidgets as W
+
+    controls = {
+        "model": W.ToggleButtons(options=["paper-m0", "paper-m1", "paper-m2", "pinhole", "default"],
+                                 value=defaults.get("model", "paper-m2"), description="model"),
+        "interval": W.ToggleButtons(options=list(RESIDUAL_INTERVALS_MM), value=defaults.get("interval", "RA3"),
+                                    description="interval"),
+    }
+    return _box(controls, model_state, draw_models, _figure(11, 6), "The paper's models on a validation run")
+
+
+# ------------------------------------------------------------------------------------------ 3: the step study
+def step_state(*, step_mm: float = 0.3, positions: int = 10, repeats: int = 3, seed: int = 1) -> dict:
+    """The twelve parameters over ``repeats`` fresh calibrations at one step and number of positions per
+    axis: ``fits`` (one row per repeat) and ``spread`` (mean, std, relative std per parameter)."""
+    from .vision import fit_paper
+
+    m = preset("paper")
+    session = Session(step_mm=step_mm, positions=(positions, positions, positions), grid=True, name="study")
+    seeds = np.random.SeedSequence(seed).generate_state(repeats)
+    fits = pd.DataFrame([fit_paper(simulate_set(m, session, seed=int(s)))[0].as_dict() for s in seeds])[TABLE4_NAMES]
+    spread = pd.DataFrame({"parameter": TABLE4_NAMES, "mean": fits.mean().to_numpy(), "std": fits.std(ddof=1).to_numpy()})
+    spread["relative_std_percent"] = 100 * spread["std"] / spread["mean"].abs()
+    return {"fits": fits, "spread": spread, "step_mm": step_mm, "positions": positions}
+
+
+def draw_steps(state: dict, fig) -> None:
+    """The twelve parameters' spread over the repeats (relative std [%], log scale)."""
+    fig.clear()
+    ax = fig.add_subplot()
+    s = state["spread"]
+    ax.barh(s["parameter"], s["relative_std_percent"], color="tab:blue")
+    ax.invert_yaxis()
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("std / |mean| over repeated calibrations [%]")
+    ax.set_title(f"step {state['step_mm']:.2f} mm, {state['positions']} positions per axis", fontsize=9)
+
+
+def explore_steps(**defaults):
+    """Interval distance and number of positions; live: the twelve parameters' spread."""
+    import ipywidgets as W
+
+    controls = {
+        "step_mm": W.FloatSlider(value=defaults.get("step_mm", 0.3), min=0.1, max=0.5, step=0.05, description="step_mm",
+                                 continuous_update=False),
+        "positions": W.IntSlider(value=defaults.get("positions", 10), min=4, max=30, description="positions",
+                                 continuous_update=False),
+    }
+    return _box(controls, step_state, draw_steps, _figure(7, 4), "The step study (Tables 3–4)")

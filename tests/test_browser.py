@@ -1,0 +1,96 @@
+"""08_explore in a real browser: JupyterLab on loopback, headless Chromium driven by Playwright."""
+
+import os
+import secrets
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "08_explore.ipynb"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def jupyterlab(tmp_path):
+    port, token = _free_port(), secrets.token_hex(16)
+    shutil.copy(NOTEBOOK, tmp_path / NOTEBOOK.name)
+    env = {**os.environ, "SLMLAB_SIZE": "small", "JUPYTER_CONFIG_DIR": str(tmp_path / "cfg"),
+           "JUPYTER_RUNTIME_DIR": str(tmp_path / "rt")}
+    env.pop("SLMLAB_FIGURES", None)
+    proc = subprocess.Popen([sys.executable, "-m", "jupyter", "lab", "--no-browser", "--ServerApp.ip=127.0.0.1",
+                             f"--ServerApp.port={port}", f"--IdentityProvider.token={token}",
+                             f"--ServerApp.root_dir={tmp_path}", "--LabApp.news_url=", "--ServerApp.port_retries=0",
+                             "--allow-root"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(120):
+            try:
+                urllib.request.urlopen(f"{url}/api/status?token={token}", timeout=1)
+                break
+            except OSError:
+                time.sleep(0.5)
+        else:
+            pytest.fail("JupyterLab did not start within 60 s")
+        yield url, token
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+@pytest.mark.browser
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (Debian package 'chromium'); .ci/run installs it")
+def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
+    url, token = jupyterlab
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True,
+                                    args=["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                                          "--disable-background-networking", "--disable-component-update",
+                                          "--disable-sync"])
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            page.goto(f"{url}/lab/tree/{NOTEBOOK.name}?token={token}")
+            page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=90_000)
+            page.get_by_text("Idle", exact=False).first.wait_for(timeout=90_000, state="attached")  # kernel up
+            images = page.locator(".jp-OutputArea-output .widget-image")
+            for attempt in range(3):  # the kernel may not take the first request while it is starting
+                page.get_by_role("menuitem", name="Run", exact=True).click()
+                page.get_by_text("Run All Cells", exact=True).click()
+                try:
+                    page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 1",
+                                           timeout=60_000)
+                    break
+                except sync_api.TimeoutError:
+                    if attempt == 2:
+                        page.screenshot(path=str(tmp_path / "failed.png"))
+                        raise
+            page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 3",
+                                   timeout=180_000)
+            handle = page.locator(".jp-OutputArea-output .widget-slider .noUi-handle").nth(2)  # distortion_scale
+            handle.scroll_into_view_if_needed()
+            first = images.first.get_attribute("src")
+            handle.focus()
+            page.keyboard.press("ArrowRight")
+            page.wait_for_function("(src) => document.querySelector('.jp-OutputArea-output .widget-image').src !== src",
+                                   arg=first, timeout=60_000)
+            assert images.first.get_attribute("src") != first
+            page.screenshot(path=str(tmp_path / "explore.png"), full_page=False)
+            assert (tmp_path / "explore.png").stat().st_size > 10_000
+        finally:
+            browser.close()
