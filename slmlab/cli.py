@@ -156,6 +156,11 @@ def _reconstruct(a) -> int:
     xyz[ok] = model.reconstruct(w[ok])
     for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
         df[c] = xyz[:, k]
+    if hasattr(model, "uncertainty"):  # 1-sigma per point, where the model provides it
+        sig = np.full((len(w), 3), np.nan)
+        sig[ok] = model.uncertainty(w[ok])
+        for k, c in enumerate(("sX_mm", "sY_mm", "sZ_mm")):
+            df[c] = sig[:, k]
     write_csv(a.out, df)
     print(f"wrote {a.out}: {int(ok.sum())} of {len(w)} points reconstructed with {model.name}")
     return 0

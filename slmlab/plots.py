@@ -16,7 +16,7 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
            "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
-           "plot_trajectory"]
+           "plot_trajectory", "plot_volumetric_errors"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -440,4 +440,18 @@ def plot_trajectory(trajectory_mm, target_mm, ax=None):
     ax.set_aspect("equal")
     ax.legend(fontsize=7)
     ax.set_title("(c) the loop's trajectory", fontsize=10)
+    return ax
+
+
+def plot_volumetric_errors(errors: dict, ax=None):
+    """Displacement error magnitude [µm] against the depth of the validation positions, one series per
+    model (``errors``: name → DataFrame with ``Z_mm`` and ``error_um``), log scale."""
+    ax = _ax(ax)
+    for name, d in errors.items():
+        ax.plot(d["Z_mm"], d["error_um"], ".", ms=2, label=name, alpha=0.6)
+    ax.set_yscale("log")
+    ax.set_xlabel("stage Z of the validation position [mm]")
+    ax.set_ylabel("|displacement error| [µm]")
+    ax.legend(fontsize=7, markerscale=4)
+    ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
     return ax

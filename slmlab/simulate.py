@@ -65,7 +65,7 @@ from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, CalibrationSet
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 
-__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper", "tilted_session",
+__all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper", "tilted_session", "volume_session", "noise_floor",
            "stage_origin"]
 
 # --------------------------------------------------------------------------------------------- presets
@@ -164,6 +164,8 @@ class Session:
     grid: bool = True
     name: str = "test1"
     tilt_poses_deg: tuple[tuple[float, float], ...] = ()
+    volume_positions: int = 0
+    volume_seed: int = 0
 
     @property
     def steps_mm(self) -> np.ndarray:
@@ -173,6 +175,8 @@ class Session:
     def centre_mm(self) -> np.ndarray:
         """Stage position ``(X, Y, Z)`` at the middle of the three sequences [mm]; it is placed at the
         centre of the field, in focus."""
+        if self.volume_positions and not any(self.positions):
+            return np.array([-4.1, 2.9, -2.25]) / 2
         span = (np.asarray(self.positions) - 1) * self.steps_mm
         return np.array([-1.0, 1.0, -1.0]) * span / 2
 
@@ -195,6 +199,13 @@ class Session:
             out["XYZ"[axis]] = s
         if self.tilt_poses_deg:
             out["T"] = np.repeat(c[None, :], len(self.tilt_poses_deg), axis=0)
+        if self.volume_positions:
+            lo = np.minimum(0.0, 2 * c)
+            hi = np.maximum(0.0, 2 * c)
+            rng = np.random.default_rng([self.volume_seed, 11])
+            v = rng.uniform(lo, hi, size=(self.volume_positions, 3))
+            v[0] = c  # position 1, the reference of the displacements: the middle of the workspace
+            out["V"] = v
         return out
 
 
@@ -223,6 +234,14 @@ def validation_session() -> Session:
     not a multiple of 0.1 mm, so Z takes 0.075 mm (31 positions, close to Test 1's 32).
     """
     return Session(step_mm=(0.1, 0.1, 0.075), positions=(42, 30, 31), grid=False, name="validation")
+
+
+def volume_session(n_positions: int = 60, seed: int = 0) -> Session:
+    """A validation run ``V`` of random stage positions filling the workspace of Test 1's validation
+    (X in [−4.1, 0], Y in [0, 2.9], Z in [−2.25, 0] mm), not only the three axes; position 1 is the middle."""
+    base = validation_session()
+    return replace(base, positions=(0, 0, 0), grid=False, name="volume", volume_positions=n_positions,
+                   volume_seed=seed)
 
 
 def tilted_session(n_poses: int = 16, max_tilt_deg: float = 20.0, *, with_sequences: Session | None = None,
@@ -423,3 +442,17 @@ def nominal_vs_paper(microscope: Microscope) -> pd.DataFrame:
     df["simulator_nominal"] = df["simulator_nominal"].astype(float)
     df["relative_difference_percent"] = 100 * (df["simulator_nominal"] / df["paper"] - 1)
     return df
+
+
+def noise_floor(cal: CalibrationSet) -> np.ndarray:
+    """The simulator's own true-model triangulation of a simulated set's noisy centres, in the stage frame
+    ``(n, 3)`` [mm] (NaN where a dot is missing): what no calibrated model can beat."""
+    from .microscope import from_dict
+
+    sim = cal.meta["simulator"]
+    m = from_dict(sim["microscope"])
+    w = cal.points[IMAGE_COLUMNS].to_numpy(float)
+    out = np.full((len(w), 3), np.nan)
+    ok = np.isfinite(w).all(axis=1)
+    out[ok] = m.microscope_to_stage(m.triangulate(w[ok]), np.asarray(sim["stage_origin_mm"]))
+    return out

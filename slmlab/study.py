@@ -16,7 +16,7 @@ from .simulate import PAPER_TESTS, Session, paper_test, simulate_set
 from .vision import fit_paper
 
 __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",
-           "z_calibration_samples"]
+           "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors"]
 
 TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
                 "KZX", "BZX_mm", "KZY", "BZY_mm"]
@@ -110,3 +110,58 @@ def z_calibration_samples(cal, params) -> pd.DataFrame:
     _, _, d = params.image_stage(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
     dd, ds, keep = displacements(df, d[:, None])
     return pd.DataFrame({"position": df["position"].to_numpy()[keep], "dD_px": dd[:, 0], "dZ_A_mm": ds[:, 2]})
+
+
+def volumetric_comparison(models: dict, val) -> "pd.DataFrame":
+    """RMS displacement error [µm] per coordinate on a volumetric run ``V`` (relative to its position 1,
+    against the truth) for each model ``{name: model}`` and for the simulator's own true-model
+    triangulation (the noise floor)."""
+    from .simulate import noise_floor
+    from .vision import displacements
+
+    v = val.points[val.points["sequence"] == "V"]
+    ok = v[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1).to_numpy()
+    v = v[ok]
+    truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    dt, _, _ = displacements(v, truth)
+    w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    rows = []
+    floor = noise_floor(val)[ok]
+    for name, p in [("noise floor (true model)", floor)] + [(n, m.reconstruct(w)) for n, m in models.items()]:
+        dp, _, _ = displacements(v, p)
+        e = 1e3 * np.sqrt(np.mean((dp - dt) ** 2, axis=0))
+        rows.append({"model": name, "X_um": e[0], "Y_um": e[1], "Z_um": e[2]})
+    df = pd.DataFrame(rows)
+    f = df.iloc[0]
+    for c in ("X", "Y", "Z"):
+        df[f"{c}_vs_floor"] = df[f"{c}_um"] / f[f"{c}_um"]
+    return df
+
+
+def uncertainty_coverage(model, val, share: float = 95.0) -> dict:
+    """Share [%] of absolute errors (after removing the frame's constant offset) inside the model's
+    ``share`` % intervals, per coordinate, on the run's V sequence."""
+    from scipy.stats import norm
+
+    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    e = model.reconstruct(w) - val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    e -= e.mean(axis=0)
+    z = norm.ppf(0.5 + share / 200)
+    inside = np.abs(e) <= z * model.uncertainty(w)
+    return {c: float(100 * inside[:, k].mean()) for k, c in enumerate("XYZ")}
+
+
+def volumetric_errors(models: dict, val) -> dict:
+    """Per sample of V: the stage Z of the position and the displacement error magnitude [µm], per model."""
+    from .vision import displacements
+
+    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    dt, st, keep = displacements(v, truth)
+    z = v["stage_z_mm"].to_numpy()[keep]
+    out = {}
+    for name, m in models.items():
+        dp, _, _ = displacements(v, m.reconstruct(v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)))
+        out[name] = pd.DataFrame({"Z_mm": z, "error_um": 1e3 * np.linalg.norm(dp - dt, axis=1)})
+    return out

@@ -69,15 +69,16 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
             page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=90_000)
             page.get_by_text("Idle", exact=False).first.wait_for(timeout=90_000, state="attached")  # kernel up
             images = page.locator(".jp-OutputArea-output .widget-image")
-            for attempt in range(3):  # the kernel may not take the first request while it is starting
-                page.get_by_role("menuitem", name="Run", exact=True).click()
-                page.get_by_text("Run All Cells", exact=True).click()
+            for attempt in range(4):  # a starting kernel or a dialog may swallow the first request
                 try:
+                    page.keyboard.press("Escape")  # close any dialog or open menu
+                    page.get_by_role("menuitem", name="Run", exact=True).click(timeout=20_000)
+                    page.get_by_text("Run All Cells", exact=True).click(timeout=20_000)
                     page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 1",
                                            timeout=60_000)
                     break
                 except sync_api.TimeoutError:
-                    if attempt == 2:
+                    if attempt == 3:
                         page.screenshot(path=str(tmp_path / "failed.png"))
                         raise
             page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 3",
