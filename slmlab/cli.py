@@ -70,6 +70,8 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="speed benchmarks beside the field's reference implementations")
     b.add_argument("--json", action="store_true")
+    b.add_argument("--markdown", type=Path, default=None, help="also write the table as Markdown (table6_speed.md)")
+    b.add_argument("--reproduce-seconds-file", type=Path, default=None, help="a file holding make reproduce's time")
     return p
 
 
@@ -204,7 +206,7 @@ def _grip(a) -> int:
 def _bench(a) -> int:
     from .bench import run
 
-    return run(as_json=a.json)
+    return run(as_json=a.json, markdown_path=a.markdown, reproduce_seconds_file=a.reproduce_seconds_file)
 
 
 VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibrate": _calibrate,

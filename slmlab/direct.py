@@ -46,9 +46,28 @@ def _variables(w: np.ndarray) -> np.ndarray:
 
 
 def features(w: np.ndarray, degree: int) -> np.ndarray:
-    """Monomials of the normalised ``(v1, v2, D)`` up to total ``degree`` (no constant) ``(n, m)``."""
+    """Monomials of the normalised ``(v1, v2, D)`` up to total ``degree`` (no constant) ``(n, m)``.
+
+    Built from power tables (``v**k`` by repeated multiplication, then two products per monomial) into a
+    preallocated array: no ``pow`` calls, no temporary per monomial."""
     v = _variables(w)
-    return np.column_stack([v[:, 0] ** a * v[:, 1] ** b * v[:, 2] ** c for a, b, c in _exponents(degree)])
+    n = len(v)
+    powers = np.empty((3, degree + 1, n))
+    powers[:, 0] = 1.0
+    for k in range(1, degree + 1):
+        np.multiply(powers[:, k - 1], v.T, out=powers[:, k])
+    return _features_t(powers, degree).T
+
+
+def _features_t(powers: np.ndarray, degree: int) -> np.ndarray:
+    """Monomial-major features ``(m, n)``, each row written contiguously, from power tables."""
+    exps = _exponents(degree)
+    out = np.empty((len(exps), powers.shape[2]))
+    for row, (a, b, c) in enumerate(exps):
+        np.multiply(powers[0, a], powers[1, b], out=out[row])
+        if c:
+            out[row] *= powers[2, c]
+    return out
 
 
 def _rows(cal: CalibrationSet, sequences=("X", "Y", "Z", "V")):
@@ -169,8 +188,10 @@ class DirectModel(Model):
     def reconstruct(self, w: np.ndarray) -> np.ndarray:
         w = np.atleast_2d(np.asarray(w, float))
         out = np.empty((len(w), 3))
-        for a in range(0, len(w), 1 << 16):
-            out[a:a + (1 << 16)] = features(w[a:a + (1 << 16)], self.degree) @ self.coef + self.const
+        ct = np.ascontiguousarray(self.coef.T)  # (3, m): with monomial-major features, one fast BLAS product
+        for a in range(0, len(w), 1 << 15):
+            f = features(w[a:a + (1 << 15)], self.degree).T  # (m, n), contiguous
+            out[a:a + (1 << 15)] = (ct @ f).T + self.const
         return out
 
     def uncertainty(self, w: np.ndarray) -> np.ndarray:

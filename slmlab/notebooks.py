@@ -39,7 +39,11 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
 
 
 def main(argv: list[str] | None = None) -> int:
-    paths = sorted(argv if argv is not None else sys.argv[1:])
+    args = list(argv if argv is not None else sys.argv[1:])
+    timing = None
+    if args[:1] == ["--timing"] and len(args) > 1:  # write the total wall time [s] to this file
+        timing, args = Path(args[1]), args[2:]
+    paths = sorted(args)
     if not paths:
         print("usage: python -m slmlab.notebooks NOTEBOOK.ipynb ...", file=sys.stderr)
         return 2
@@ -54,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         total += dt
         print(f"  done in {dt:.1f} s", flush=True)
     print(f"{len(paths)} notebooks in {total:.1f} s")
+    if timing is not None:
+        timing.write_text(f"{total:.1f}\n")
     return 0
 
 
