@@ -206,7 +206,10 @@ def _bench_explorer() -> list[BenchLine]:
     from .explore import explore_microscope, explore_models
 
     lines = []
-    for name, make in (("virtual microscope", explore_microscope), ("paper models", explore_models)):
+    from .explore import explore_steps
+
+    for name, make in (("virtual microscope", explore_microscope), ("paper models", explore_models),
+                       ("step study", explore_steps)):
         box = make()
         box.update()
         ours = best_time(box.update, repeat=3)
@@ -221,7 +224,16 @@ BENCHES = [_bench_simulate, _bench_render, _bench_extract, _bench_paper_models, 
 def machine() -> str:
     import os
 
-    return f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, NumPy {np.__version__}"
+    import cv2
+    cpu = ""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((l.split(":", 1)[1].strip() for l in fh if l.startswith("model name")), "")
+    except OSError:
+        pass
+    return (f"{cpu or platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}, "
+            f"Python {platform.python_version()}, NumPy {np.__version__}, OpenCV {cv2.__version__} "
+            f"(benchmarks single-threaded)")
 
 
 def markdown(lines: list[BenchLine], reproduce_s: float | None = None) -> str:

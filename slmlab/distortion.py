@@ -261,24 +261,26 @@ class DistortionResult:
         return pd.DataFrame(rows).rename(columns={"lam": "lambda"})
 
 
-def estimate_distortion(grid: pd.DataFrame) -> DistortionResult:
+def estimate_distortion(grid: pd.DataFrame, methods=("paper-two-step", "joint")) -> DistortionResult:
     """Estimate Φ of both views from the ``grid`` rows of a calibration set (columns ``row, col, wl1, wl2,
-    wr1, wr2``), by both estimators; choose the one with the smaller lattice misfit (summed over views)."""
+    wr1, wr2``) by the given estimators (default both); keep the one with the smaller lattice misfit
+    (summed over views)."""
     if grid.empty:
         raise SlmlabError("the calibration set has no 'grid' sequence: §3's distortion correction needs one "
                           "stereo pair of the large plate")
     i, j = grid["row"].to_numpy(), grid["col"].to_numpy()
-    estimates: dict = {"paper-two-step": {}, "joint": {}}
+    estimates: dict = {m: {} for m in methods}
     qual = []
     for side in "lr":
         w1, w2 = grid[f"w{side}1"].to_numpy(float), grid[f"w{side}2"].to_numpy(float)
         two = estimate_two_step(i, j, w1, w2)
-        joint = estimate_joint(i, j, w1, w2, start=two)
-        estimates["paper-two-step"][side] = two
-        estimates["joint"][side] = joint
+        if "paper-two-step" in estimates:
+            estimates["paper-two-step"][side] = two
+        if "joint" in estimates:
+            estimates["joint"][side] = estimate_joint(i, j, w1, w2, start=two)
         qual.append({"view": side, "stage": "raw", **quality(i, j, w1, w2)})
-        for method, vc in (("paper-two-step", two), ("joint", joint)):
-            qual.append({"view": side, "stage": method, **quality(i, j, *vc.apply(w1, w2))})
+        for method in estimates:
+            qual.append({"view": side, "stage": method, **quality(i, j, *estimates[method][side].apply(w1, w2))})
     q = pd.DataFrame(qual)
     misfit = q[q["stage"] != "raw"].groupby("stage")["lattice_rms_px"].sum()
     return DistortionResult(estimates, str(misfit.idxmin()), q)

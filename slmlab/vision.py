@@ -213,9 +213,8 @@ def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "me
         if n < 2:
             raise SlmlabError(f"the {s} sequence has {n} position{'s' if n != 1 else ''}; the paper's models need "
                               "X, Y and Z sequences of at least 2 (better 3 or more) positions", cal.path)
-    dist = estimate_distortion(cal.sequence("grid"))
-    if distortion_method is not None:
-        dist.chosen = distortion_method
+    dist = estimate_distortion(cal.sequence("grid"),
+                               methods=("paper-two-step", "joint") if distortion_method is None else (distortion_method,))
     align = estimate_alignment(cal, dist.apply)
 
     def chain(df):
