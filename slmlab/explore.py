@@ -274,13 +274,20 @@ def step_state(*, step_mm: float = 0.3, positions: int = 10, repeats: int = 3, s
 
 def draw_steps(state: dict, fig) -> None:
     """The twelve parameters' spread over the repeats (relative std [%], log scale)."""
-    fig.clear()
-    ax = fig.add_subplot()
     s = state["spread"]
-    ax.barh(s["parameter"], s["relative_std_percent"], color="tab:blue")
-    ax.invert_yaxis()
-    ax.tick_params(labelsize=7)
-    ax.set_xlabel("std / |mean| over repeated calibrations [%]")
+    art = getattr(fig, "_slmlab_artists", None)
+    if art is None:  # axes and bars made once; later updates only change the bars (the redraw is most of it)
+        fig.subplots_adjust(left=0.22)
+        ax = fig.add_subplot()
+        bars = ax.barh(s["parameter"], s["relative_std_percent"], color="tab:blue")
+        ax.invert_yaxis()
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("std / |mean| over repeated calibrations [%]")
+        art = fig._slmlab_artists = (ax, bars)
+    ax, bars = art
+    for bar, v in zip(bars, s["relative_std_percent"]):
+        bar.set_width(v)
+    ax.set_xlim(0, 1.1 * float(s["relative_std_percent"].max()))
     ax.set_title(f"step {state['step_mm']:.2f} mm, {state['positions']} positions per axis", fontsize=9)
 
 
