@@ -251,7 +251,7 @@ def explore_models(**defaults):
         "interval": W.ToggleButtons(options=list(RESIDUAL_INTERVALS_MM), value=defaults.get("interval", "RA3"),
                                     description="interval"),
     }
-    return _box(controls, model_state, draw_models, _figure(11, 6), "The paper's models on a validation run")
+    return _box(controls, model_state, draw_models, _figure(9.5, 5.2), "The paper's models on a validation run")
 
 
 # ------------------------------------------------------------------------------------------ 3: the step study
