@@ -132,11 +132,12 @@ def render_scene(microscope: Microscope, scene: Scene, tip_mm, side: str, rng: n
     size = o.image_size_px
     refl = np.ones(size[::-1], np.float32)
     hub = np.asarray(scene.hub_centre_mm, float)
+    t = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+    hub_outline = hub + scene.hub_radius_mm * np.column_stack([np.cos(t), np.sin(t), np.zeros_like(t)])
     shapes = {
         "pad": (_rect(np.asarray(scene.pad_centre_mm) - [scene.pad_size_mm / 2, 0, 0], [1, 0, 0], scene.pad_size_mm,
                       scene.pad_size_mm, 4), scene.pad_centre_mm[2]),
-        "hub": (hub + np.column_stack([scene.hub_radius_mm * np.cos(t), scene.hub_radius_mm * np.sin(t), np.zeros_like(t)])
-                if (t := np.linspace(0, 2 * np.pi, 72, endpoint=False)) is not None else None, hub[2]),
+        "hub": (hub_outline, hub[2]),
         "gripper": (gripper_outline(tip_mm, scene), float(np.asarray(tip_mm)[2])),
     }
     for part in parts:

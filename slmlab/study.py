@@ -12,7 +12,7 @@ import pandas as pd
 from .evaluation import ELEMENTS, Evaluation
 from .microscope import Microscope
 from .paths import paper_reference
-from .simulate import PAPER_TESTS, Session, paper_test, simulate_set
+from .simulate import PAPER_TESTS, Session, simulate_set
 from .vision import fit_paper
 
 __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",

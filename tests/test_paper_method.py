@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab.alignment import estimate_alignment, path_straightness, sequence_coordinates
+from slmlab.alignment import estimate_alignment
 from slmlab.distortion import estimate_distortion, quality
 from slmlab.evaluation import RESIDUAL_INTERVALS_MM, s_coefficients, requirement
 from slmlab.microscope import CentroidNoise, View

@@ -1,7 +1,5 @@
 """The traditional pinhole stereo model (OpenCV): calibration, conditioning, stage maps, real images."""
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 

@@ -1,13 +1,11 @@
 """Reliability: every user error is exit status 2 with one line; nothing is lost; runs are deterministic."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
