@@ -3,15 +3,43 @@
 The paper's chain is linear after its corrections, so what a CMO microscope does beyond them (perspective: a
 disparity ``∝ z/(L − z)`` and a magnification that changes with depth; the disparity curvature the paper's
 procedure misses; residual camera rotation) is left in its residuals. This model maps
-``(v1, v2, D) = ((w1_l + w1_r)/2, (w2_l + w2_r)/2, w1_r − w1_l)`` to stage coordinates with a polynomial
-of total degree ``k`` fitted by least squares on the calibration set's stage moves, with **one unknown offset
-per dot and sequence** (eliminated by centring each dot's rows), so no absolute plate position is needed.
+``(v1, v2, D) = ((w1_l + w1_r)/2, (w2_l + w2_r)/2, u·(w_r − w_l))`` to stage coordinates with a polynomial of
+total degree ``k`` (one degree per coordinate). ``u`` is the direction in which the disparity varies most in
+the calibration set: ``(1, 0)`` for a CMO microscope (§4: after alignment the disparity is along ``w1``), mostly
+``(0, 1)`` for a rig whose second camera looks down obliquely. The variables are normalised to ``[−1, 1]`` over
+the calibration set.
 
-* The degree is chosen on held-out positions (every third position of each sequence), never on test data.
+Two ways to calibrate, chosen from the set (``mode="auto"``):
+
+``"moves"``
+    the set has stage moves in X or Y (the paper's X, Y, Z sequences, or a free set ``V``). The targets are
+    the commanded stage positions, with **one unknown offset per dot and sequence** (eliminated by centring),
+    so no absolute plate position is needed.
+``"zstack"``
+    only a Z sequence, as in a lab with a Z stage alone. X and Y come from the plate: dot ``[row, col]`` of
+    a ``rows × cols`` plate of pitch ``p`` sits at ``x = ((cols + 1)/2 − col)·p``, ``y = ((rows + 1)/2 − row)·p``
+    (:meth:`slmlab.microscope.Plate.nominal_points`; ``[1, 1]`` at ``+x, +y``) plus the commanded X, Y; Z is
+    the commanded stage Z. The frame is the plate's axes and the Z stage's direction.
+
+In both, a stage's own errors at each position (positioning noise, lead and straightness errors: the same
+for every dot of that position) are a **random effect per position**. Their variance and the centroid noise's
+are estimated from the residuals (within and between positions), and the fit is generalised least squares
+(quasi-demeaning by position): the polynomial's shape comes from the many dots within each position, and only
+its large-scale part from the (noisy) stage moves.
+
+**Stage scale.** A stage's scale error is invisible in its own commanded moves (and a plate cannot stand in
+as the length reference of the stage frame: that frame's axes are not orthogonal, and a Y axis tilted 0.8° out
+of the plate's plane alone changes in-plane lengths by 1e-4, as much as a typical scale error). Give the
+stage's datasheet accuracy as ``stage_scale_sigma`` (relative, 1σ) to include it in the uncertainty.
+
+* The degree is chosen on held-out positions (every third position of each sequence), never on test data,
+  by their held-out error net of the stage's own positioning noise.
 * Outliers (mismatched or misindexed dots) are down-weighted by iteratively reweighted least squares (Huber
-  weights on the residual norm, then rejection beyond 10 robust sigmas); the rejected rows are reported.
-* Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): centroid noise propagated through the polynomial's
-  Jacobian, the coefficients' covariance, and the stage's repeatability measured by the fit's residuals.
+  weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
+* Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
+  defocus, METHOD.md §7), estimated from the scatter within positions; the coefficients' covariance (which
+  carries the stage's random errors through the generalised least squares); and, if declared, the stage's
+  scale uncertainty times the distance from the frame's reference.
 """
 
 from __future__ import annotations
@@ -19,16 +47,20 @@ from __future__ import annotations
 from itertools import combinations_with_replacement
 
 import numpy as np
+import pandas as pd
 
 from .errors import SlmlabError
 from .io import CalibrationSet, IMAGE_COLUMNS
 from .linefit import point_keys
 from .models import Model, register
 
-__all__ = ["features", "fit_direct", "DirectModel"]
+__all__ = ["features", "fit_direct", "DirectModel", "plate_xy", "LEGACY_FRAME"]
 
-SCALE = np.array([1024.0, 1024.0, 100.0])
-CENTRE = np.array([1024.0, 1024.0, 0.0])
+#: the normalisation of model files written before the frame was fitted: centre, scale, disparity direction
+LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
+SEQUENCES = ("X", "Y", "Z", "V")
+RCOND = 1e-9  # relative singular-value cutoff of the least-squares fits
+STAGE = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
 
 
 def _exponents(degree: int) -> list[tuple[int, int, int]]:
@@ -39,18 +71,53 @@ def _exponents(degree: int) -> list[tuple[int, int, int]]:
     return out
 
 
-def _variables(w: np.ndarray) -> np.ndarray:
+def _raw_variables(w: np.ndarray, direction) -> np.ndarray:
     w = np.asarray(w, float)
-    v = np.column_stack([(w[:, 0] + w[:, 2]) / 2, (w[:, 1] + w[:, 3]) / 2, w[:, 2] - w[:, 0]])
-    return (v - CENTRE) / SCALE
+    u = np.asarray(direction, float)
+    return np.column_stack([(w[:, 0] + w[:, 2]) / 2, (w[:, 1] + w[:, 3]) / 2,
+                            u[0] * (w[:, 2] - w[:, 0]) + u[1] * (w[:, 3] - w[:, 1])])
 
 
-def features(w: np.ndarray, degree: int) -> np.ndarray:
+def _variables(w: np.ndarray, frame: dict) -> np.ndarray:
+    v = _raw_variables(w, frame["direction"])
+    return (v - np.asarray(frame["centre"])) / np.asarray(frame["scale"])
+
+
+def fit_frame(w: np.ndarray, key: np.ndarray | None = None, use: np.ndarray | None = None) -> dict:
+    """The normalisation of a calibration set's image coordinates ``(n, 4)`` [px]: the disparity direction
+    ``u``, and the centre and half-range [px] of ``(v1, v2, D)``, so that the set spans ``[−1, 1]`` in each.
+
+    ``u`` is the principal direction of how each dot's disparity vector changes from position to position
+    (``key``: one label per dot and sequence; only the rows ``use``, typically the Z sequence's, if any),
+    with its largest component positive: the direction depth moves the disparity in. Across the field the disparity also varies, and for
+    an oblique camera far more than with depth, so the spread of the disparities themselves would mislead."""
+    w = np.asarray(w, float)
+    sub = w if use is None or not np.any(use) else w[use]
+    d = sub[:, 2:4] - sub[:, 0:2]
+    if key is None:
+        d = d - d.mean(axis=0)
+    else:
+        _, inv = np.unique(key if use is None or not np.any(use) else key[use], return_inverse=True)
+        d = d - _means(d, inv.ravel(), inv.max() + 1, np.ones(len(d)))[inv.ravel()]
+    _, vec = np.linalg.eigh(d.T @ d)
+    u = vec[:, -1]
+    u = u if u[np.argmax(np.abs(u))] > 0 else -u
+    v = _raw_variables(w, u)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return {"centre": ((lo + hi) / 2).tolist(), "scale": np.maximum((hi - lo) / 2, 1e-6).tolist(),
+            "direction": u.tolist()}
+
+
+def features(w: np.ndarray, degree: int, frame: dict | None = None) -> np.ndarray:
     """Monomials of the normalised ``(v1, v2, D)`` up to total ``degree`` (no constant) ``(n, m)``.
 
     Built from power tables (``v**k`` by repeated multiplication, then two products per monomial) into a
     preallocated array: no ``pow`` calls, no temporary per monomial."""
-    v = _variables(w)
+    return _features_v(_variables(w, frame or LEGACY_FRAME), degree)
+
+
+def _features_v(v: np.ndarray, degree: int) -> np.ndarray:
+    """:func:`features` of normalised variables ``(n, 3)``."""
     n = len(v)
     powers = np.empty((3, degree + 1, n))
     powers[:, 0] = 1.0
@@ -70,93 +137,255 @@ def _features_t(powers: np.ndarray, degree: int) -> np.ndarray:
     return out
 
 
-def _rows(cal: CalibrationSet, sequences=("X", "Y", "Z", "V")):
-    pts = cal.points[cal.points["sequence"].isin(sequences)]
+def plate_xy(row, col, plate: dict) -> np.ndarray:
+    """Plate coordinates ``(n, 2)`` [mm] of dots ``[row, col]`` of a plate ``{rows, cols, pitch_mm}``: the
+    convention of :meth:`slmlab.microscope.Plate.nominal_points` (``[1, 1]`` at ``+x, +y``, centred)."""
+    p = float(plate["pitch_mm"])
+    return np.column_stack([((plate["cols"] + 1) / 2 - np.asarray(col, float)) * p,
+                            ((plate["rows"] + 1) / 2 - np.asarray(row, float)) * p])
+
+
+# --------------------------------------------------------------------------------------------- rows
+def _rows(cal: CalibrationSet, mode: str):
+    pts = cal.points[cal.points["sequence"].isin(SEQUENCES)]
     pts = pts[pts[IMAGE_COLUMNS].notna().all(axis=1)]
-    moving = pts.groupby("sequence")["position"].transform("nunique") >= 2
-    pts = pts[moving]
+    pts = pts[pts.groupby("sequence")["position"].transform("nunique") >= 2]
     if len(pts) == 0:
         raise SlmlabError("the direct model needs sequences with stage motion (X, Y, Z or V) seen in both views",
                           cal.path)
-    seq_code = pts["sequence"].map({s: k for k, s in enumerate(sorted(pts["sequence"].unique()))}).to_numpy()
-    groups = point_keys(pts["row"], pts["col"]) * 16 + seq_code
-    return pts, groups
+    moved = pts.groupby("sequence")[STAGE].agg(lambda s: float(s.max() - s.min()))
+    lateral = bool((moved[["stage_x_mm", "stage_y_mm"]].to_numpy() > 0).any())
+    if mode == "auto":
+        mode = "moves" if lateral else "zstack"
+    if mode not in ("moves", "zstack"):
+        raise SlmlabError(f"unknown mode {mode!r} of the direct model; use 'auto', 'moves' or 'zstack'")
+    if mode == "moves" and not lateral:
+        raise SlmlabError("mode 'moves' needs stage moves in X or Y; a set with a Z sequence only calibrates "
+                          "in mode 'zstack' (X, Y from the plate's pitch)", cal.path)
+    codes = {s: k for k, s in enumerate(sorted(pts["sequence"].unique()))}
+    seq_code = pts["sequence"].map(codes).to_numpy()
+    positions = seq_code * 1_000_000 + pts["position"].to_numpy()
+    target = pts[STAGE].to_numpy(float)
+    if mode == "moves":
+        groups = point_keys(pts["row"], pts["col"]) * 16 + seq_code
+    else:  # one group: X, Y from the plate's lattice, Z from the stage; a common constant only
+        target = target + np.column_stack([plate_xy(pts["row"], pts["col"], cal.plate("Z")), np.zeros(len(pts))])
+        groups = np.zeros(len(pts), np.int64)
+    return pts, groups, positions, target, mode
 
 
-def _centre(x: np.ndarray, inv: np.ndarray, n_groups: int, wts: np.ndarray) -> np.ndarray:
-    sw = np.bincount(inv, wts, n_groups)
-    means = np.stack([np.bincount(inv, wts * x[:, k], n_groups) for k in range(x.shape[1])], axis=1) / sw[:, None]
-    return x - means[inv]
+def _means(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
+    sw = np.maximum(np.bincount(inv, wts, n), 1e-300)
+    return np.stack([np.bincount(inv, wts * x[:, k], n) for k in range(x.shape[1])], axis=1) / sw[:, None]
 
 
-def _solve(phi, stage, groups, *, iterations: int = 8, mask=None):
-    """Weighted least squares with per-group offsets (centred out): Huber reweighting first (a robust
-    start), then rejection beyond 10 robust sigmas (inliers keep full weight, gross outliers get none)."""
+# --------------------------------------------------------------------------------------------- solver
+def _theta(s_e2, s_u2, n_t) -> np.ndarray:
+    """Quasi-demeaning factors ``(positions, 3)``. Z keeps ``θ = 0`` (ordinary least squares): its depth
+    dependence is known only between positions (a plate is flat), while within a position the disparity's
+    noise would pull ``∂Z/∂D`` towards zero (errors in the variables) once the between part is down-weighted."""
+    theta = 1 - np.sqrt(s_e2[None, :] / (s_e2[None, :] + n_t[:, None] * s_u2[None, :]))
+    theta[:, 2] = 0.0
+    return theta
+
+
+def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, variance=None, clusters=None,
+           precision=None):
+    """Generalised least squares with per-group offsets (centred out) and a random effect per position.
+
+    Each coordinate ``k``: rows are centred per group (dot), then quasi-demeaned per position,
+    ``y − θ_t·ȳ_t`` with ``θ_t = 1 − sqrt(σe² / (σe² + n_t σu²))`` (X and Y; see :func:`_theta` for Z)
+    (``σe``: the scatter of one row, ``σu``: the
+    stage's error per position, both from the previous iteration's residuals, or fixed by ``variance =
+    (σe², σu²)``, each ``(3,)`` [mm²]: estimate them once with a rich polynomial, else a model's misfit would
+    pass for stage error). Robust weights: Huber first, then rejection beyond 10 robust sigmas (inliers keep
+    full weight, gross outliers get none). ``clusters``: labels of rows whose errors are shared (a plate's
+    dots, whose fabrication errors are in every plane of a Z stack): the coefficients' covariance is then the
+    cluster-robust sandwich, else ``σe²·(AᵀA)⁻¹``. ``precision``: relative weights ``(n, 3)`` of the rows
+    per coordinate (mean 1), the inverse of how the scatter of one point grows with defocus; ``σe`` is then
+    the scatter at unit weight."""
     labels, inv = np.unique(groups, return_inverse=True)
-    inv = inv.ravel()
+    plabels, pinv = np.unique(positions, return_inverse=True)
+    inv, pinv = inv.ravel(), pinv.ravel()
+    n_g, n_p, m = len(labels), len(plabels), phi.shape[1]
+    mask = np.ones((m, 3), bool) if mask is None else mask
     wts = np.ones(len(phi))
+    hw = np.ones((len(phi), 3)) if precision is None else np.asarray(precision, float)
+    s_e2, s_u2 = (np.ones(3), np.zeros(3)) if variance is None else (np.asarray(variance[0]), np.asarray(variance[1]))
+    n_t = np.bincount(pinv, minlength=n_p).astype(float)
+    theta = _theta(s_e2, s_u2, n_t)
+    per_group = np.bincount(inv, minlength=n_g)
+    dof_dots = np.mean(per_group[inv] / np.maximum(per_group[inv] - 1, 1)) if n_g > 1 else 1.0
     for it in range(iterations):
-        pc, sc = _centre(phi, inv, len(labels), wts), _centre(stage, inv, len(labels), wts)
-        sq = np.sqrt(wts)[:, None]
-        if mask is None:
-            coef, *_ = np.linalg.lstsq(pc * sq, sc * sq, rcond=None)
-        else:  # each coordinate with its own monomials (its own degree)
-            coef = np.zeros((phi.shape[1], 3))
-            for k in range(3):
-                coef[mask[:, k], k] = np.linalg.lstsq(pc[:, mask[:, k]] * sq, sc[:, k] * sq[:, 0], rcond=None)[0]
-        r = np.linalg.norm(sc - pc @ coef, axis=1)
-        scale = 1.4826 * np.median(r) + 1e-12
+        pc, sc = phi - _means(phi, inv, n_g, wts)[inv], target - _means(target, inv, n_g, wts)[inv]
+        pm, sm = _means(pc, pinv, n_p, wts), _means(sc, pinv, n_p, wts)
+        coef = np.zeros((m, 3))
+        designs = []
+        for k in range(3):
+            sq = np.sqrt(wts * hw[:, k])
+            th = theta[pinv, k]
+            a = (pc[:, mask[:, k]] - th[:, None] * pm[pinv][:, mask[:, k]]) * sq[:, None]
+            u, sv, vt = np.linalg.svd(a, full_matrices=False)
+            keep = sv > RCOND * sv[0]  # monomials the data cannot tell apart (e.g. x⁴ on 4 lattice columns)
+            vk = vt[keep].T / sv[keep]
+            coef[mask[:, k], k] = vk @ (u[:, keep].T @ ((sc[:, k] - th * sm[pinv, k]) * sq))
+            designs.append((a, vk, (sc[:, k] - th * sm[pinv, k]) * sq))
+        res = sc - pc @ coef
+        n_t = np.bincount(pinv, wts, n_p)
+        rm = _means(res, pinv, n_p, wts)
+        within = res - rm[pinv]
+        if variance is None:
+            dof_pos = np.mean(n_t[pinv] / np.maximum(n_t[pinv] - 1, 1))
+            dof_par = wts.sum() / max(wts.sum() - m - n_g - n_p, 1.0)
+            s_e2 = np.maximum(np.sum(wts[:, None] * hw * within ** 2, 0) / wts.sum() * dof_dots * dof_pos * dof_par,
+                              1e-24)
+            live = n_t > 0.5
+            s_u2 = np.maximum(np.mean(rm[live] ** 2, 0) - s_e2 * np.mean(1 / n_t[live]), 0.0)
+            theta = _theta(s_e2, s_u2, n_t)
+        r = np.linalg.norm(within * np.sqrt(hw / s_e2), axis=1)
+        scale = 1.4826 * np.median(r[wts > 0]) + 1e-12
         if it < 3:
             new = np.minimum(1.0, 3.0 * scale / np.maximum(r, 1e-15))      # Huber
         else:
             new = (r < 10.0 * scale).astype(float)                         # reject beyond 10 robust sigmas
-        if it >= 3 and np.allclose(new, wts, atol=1e-4):
+        if it >= 4 and np.allclose(new, wts, atol=1e-4):
             break
         wts = new
-    offsets = np.stack([np.bincount(inv, wts * (stage - phi @ coef)[:, k], len(labels)) for k in range(3)], 1)
-    offsets /= np.bincount(inv, wts, len(labels))[:, None]
-    return coef, wts, r, labels, inv, offsets
+    offsets = _means(target - phi @ coef, inv, n_g, wts)
+    cov = np.zeros((3, m, m))
+    for k in range(3):
+        idx = np.flatnonzero(mask[:, k])
+        a, vk, b = designs[k]
+        bread = vk @ vk.T
+        if clusters is None:
+            cov[k][np.ix_(idx, idx)] = s_e2[k] * bread
+        else:
+            _, cinv = np.unique(clusters, return_inverse=True)
+            cinv = cinv.ravel()
+            n_c = cinv.max() + 1
+            score = a * (b - a @ coef[idx, k])[:, None]
+            sums = np.stack([np.bincount(cinv, score[:, j], n_c) for j in range(score.shape[1])], axis=1)
+            cov[k][np.ix_(idx, idx)] = bread @ (sums.T @ sums) @ bread * n_c / max(n_c - 1, 1)
+    return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv, "offsets": offsets, "within": within,
+            "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2), "sigma_u_mm": np.sqrt(s_u2), "cov": cov,
+            "position_residuals": rm}
 
 
-def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int = 5):
-    """Fit the direct model; ``degree=None`` chooses it on held-out positions. Returns a dict with ``coef``,
-    ``degree``, ``cv`` (held-out RMS per degree), ``weights``, ``residual_rms_mm`` and ``cov``."""
-    pts, groups = _rows(cal)
+def _held_out_error(phi, target, groups, positions, held, variance, precision) -> np.ndarray:
+    """RMS [mm] per coordinate on held-out positions of a fit on the others, net of the stage's own error
+    at each held-out position (its variance ``σu²`` estimated by the fit)."""
+    f = _solve(phi[~held], target[~held], groups[~held], positions[~held], variance=variance,
+               precision=precision[~held])
+    lookup = dict(zip(f["labels"].tolist(), range(len(f["labels"]))))
+    idx = np.array([lookup.get(g, -1) for g in groups[held].tolist()])
+    ok = idx >= 0
+    e = phi[held][ok] @ f["coef"] + f["offsets"][idx[ok]] - target[held][ok]
+    n = np.linalg.norm(e / f["sigma_e_mm"], axis=1)
+    inlier = n <= np.median(n) + 5 * 1.4826 * np.median(np.abs(n - np.median(n)))  # robust to outliers
+    e, pos = e[inlier], positions[held][ok][inlier]
+    _, pinv = np.unique(pos, return_inverse=True)
+    pinv = pinv.ravel()
+    ones = np.ones(len(e))
+    pm = _means(e, pinv, pinv.max() + 1, ones)
+    n_t = np.bincount(pinv)
+    within = np.mean((e - pm[pinv]) ** 2, axis=0)
+    between = np.mean(pm ** 2, axis=0) - f["sigma_u_mm"] ** 2 - f["sigma_e_mm"] ** 2 * np.mean(1 / n_t)
+    return np.sqrt(within + np.maximum(between, 0.0))
+
+
+def _precision(noise_poly: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Relative weights ``(n, 3)`` (mean 1, within a factor 10 either way) of rows at normalised depth
+    ``depth``: the inverse of their variance under ``noise_poly``."""
+    var = noise_poly[:, 0][None, :] + depth[:, None] * noise_poly[:, 1] + depth[:, None] ** 2 * noise_poly[:, 2]
+    var = np.clip(var, 0.1 * np.mean(np.abs(var), 0), 10 * np.mean(np.abs(var), 0))
+    p = 1.0 / var
+    return p / p.mean(axis=0)
+
+
+def _noise_vs_depth(vn_depth, within, wts, dof) -> np.ndarray:
+    """Per coordinate, the variance [mm²] of one row as ``a + b·Dn + c·Dn²`` of the normalised depth variable
+    (the centroid noise grows with defocus), fitted to the squared within-position residuals. ``(3, 3)``."""
+    good = wts > 0.5
+    a = np.column_stack([np.ones(good.sum()), vn_depth[good], vn_depth[good] ** 2])
+    out = np.zeros((3, 3))
+    for k in range(3):
+        out[k] = np.linalg.lstsq(a, dof * within[good, k] ** 2, rcond=None)[0]
+    return out
+
+
+def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int = 5, *, mode: str = "auto"):
+    """Fit the direct model; ``degree=None`` chooses it per coordinate on held-out positions. Returns a dict
+    with ``coef``, ``const``, ``frame``, ``degrees``, ``cv`` (held-out RMS per degree), ``weights``,
+    ``sigma_mm`` (scatter of one point), ``stage_error_mm`` (per position), ``noise_poly``, ``cov``,
+    ``suspects`` and ``mode``."""
+    pts, groups, positions, target, mode = _rows(cal, mode)
     w = pts[IMAGE_COLUMNS].to_numpy(float)
-    stage = pts[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].to_numpy(float)
+    dots = point_keys(pts["row"], pts["col"]) * 16 + positions // 1_000_000
+    frame = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy())
+    # variance components (one row's scatter, the stage's error per position) from a rich polynomial
+    # and how one point's scatter grows with defocus (the rows' relative precision)
+    rich = max(d for d in range(1, max_degree + 1) if d == 1 or len(_exponents(d)) * 4 < len(w))
+    phi_rich = features(w, rich, frame)
+    depth = _variables(w, frame)[:, 2]
+    pre = _solve(phi_rich, target, groups, positions)
+    precision = _precision(_noise_vs_depth(depth, pre["within"], pre["weights"], 1.0), depth)
+    pre = _solve(phi_rich, target, groups, positions, precision=precision)
+    variance = (pre["sigma_e_mm"] ** 2, pre["sigma_u_mm"] ** 2)
     cv = {}
     if degree is None:  # one degree per coordinate, each on its own held-out error (Z's noise would
         held = (pts["position"].to_numpy() % 3 == 0)  # otherwise push X and Y to overfit)
+        if held.all() or not held.any() or len(np.unique(positions[~held])) < 2:
+            raise SlmlabError("too few stage positions to choose the degree (at least 3 per sequence); give "
+                              "degree=... or image more positions", cal.path)
+        # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
+        sampled = pd.Series(positions[~held]).groupby(positions[~held] // 1_000_000).nunique().min()
         for d in range(1, max_degree + 1):
-            phi = features(w, d)
-            coef, _, _, labels, inv, off = _solve(phi[~held], stage[~held], groups[~held])
-            lookup = dict(zip(labels.tolist(), range(len(labels))))
-            idx = np.array([lookup.get(g, -1) for g in groups[held].tolist()])
-            ok = idx >= 0
-            e = phi[held][ok] @ coef + off[idx[ok]] - stage[held][ok]
-            n = np.linalg.norm(e, axis=1)
-            inlier = n <= np.median(n) + 5 * 1.4826 * np.median(np.abs(n - np.median(n)))  # robust to outliers
-            cv[d] = np.sqrt(np.mean(e[inlier] ** 2, axis=0))
-        degrees = [min(cv, key=lambda d: cv[d][k]) for k in range(3)]
+            phi = features(w, d, frame)
+            if d > 1 and (phi.shape[1] + 1 >= (~held).sum() or d >= sampled):
+                break
+            cv[d] = _held_out_error(phi, target, groups, positions, held, variance, precision)
+        # the one-standard-error rule: the lowest degree within one standard error of the best. Held-out
+        # positions lie on the calibration's own axes; a needlessly high degree extrapolates badly into
+        # the rest of the volume, which they cannot see.
+        se = 1 / np.sqrt(2 * held.sum())
+        degrees = [min(d for d in cv if cv[d][k] <= min(v[k] for v in cv.values()) * (1 + se)) for k in range(3)]
         cv = {d: [float(x) for x in v] for d, v in cv.items()}
     else:
-        degrees = list(np.broadcast_to(np.asarray(degree, int), (3,)))
-    phi = features(w, max(degrees))
+        degrees = [int(d) for d in np.broadcast_to(np.asarray(degree, int), (3,))]
+    phi = features(w, max(degrees), frame)
     mask = np.array([[sum(e) <= dk for dk in degrees] for e in _exponents(max(degrees))])  # (m, 3)
-    coef, wts, r, labels, inv, off = _solve(phi, stage, groups, mask=mask)
+    dots_only = point_keys(pts["row"], pts["col"]) if mode == "zstack" else None
+    fit = _solve(phi, target, groups, positions, mask=mask, variance=variance, clusters=dots_only,
+                 precision=precision)
+    coef, wts = fit["coef"], fit["weights"]
+    if mode == "moves":  # the first moving sequence's first position: plate centre at its commanded position
+        first = pts["position"].to_numpy() == pts.groupby("sequence")["position"].transform("min").to_numpy()
+        const = np.mean(target[first] - phi[first] @ coef, axis=0)
+    else:
+        const = np.sum(wts[:, None] * (target - phi @ coef), 0) / wts.sum()
     good = wts > 0.1
-    res = _centre(stage, inv, len(labels), wts) - _centre(phi, inv, len(labels), wts) @ coef
-    n_per_group = np.bincount(inv, minlength=len(labels))[inv]
-    # residual spread per coordinate, corrected for the offsets fitted per dot
-    sigma = np.sqrt(np.mean(res[good] ** 2, axis=0) * np.mean(n_per_group / np.maximum(n_per_group - 1, 1)))
-    pc = _centre(phi, inv, len(labels), wts) * np.sqrt(wts)[:, None]
-    cov = np.linalg.pinv(pc.T @ pc)  # times sigma_k^2 per coordinate (of the largest degree's monomials)
-    # absolute frame: the first moving sequence's first position, plate centre at its commanded position
-    first = pts["position"].to_numpy() == pts.groupby("sequence")["position"].transform("min").to_numpy()
-    const = np.mean(stage[first] - phi[first] @ coef, axis=0)
+    within, cov, sigma = fit["within"], fit["cov"], fit["sigma_e_mm"]
+    n_pt = np.bincount(fit["pinv"], wts)[fit["pinv"]]
+    dof = np.mean(n_pt / np.maximum(n_pt - 1, 1))
+    if mode == "moves":
+        n_pg = np.bincount(fit["inv"])[fit["inv"]]
+        dof *= np.mean(n_pg / np.maximum(n_pg - 1, 1))
+    else:  # the plate's fabrication errors are in the X, Y targets, the same in every plane: a per-dot
+        # effect (in the coefficients' covariance through the clusters). One point's scatter is measured
+        # across planes.
+        _, dinv = np.unique(point_keys(pts["row"], pts["col"]), return_inverse=True)
+        dinv = dinv.ravel()
+        n_d = np.bincount(dinv, wts)
+        fab = _means(within, dinv, len(n_d), wts)
+        within = within - fab[dinv]
+        dof *= np.mean(n_d[dinv] / np.maximum(n_d[dinv] - 1, 1))
+        sigma = np.sqrt(np.sum(wts[:, None] * within ** 2, 0) / wts.sum() * dof)
+    noise_poly = _noise_vs_depth(_variables(w, frame)[:, 2], within, wts, dof)
     suspects = pts[~good][["sequence", "position", "row", "col"]].assign(weight=wts[~good])
-    return {"coef": coef, "const": const, "degree": max(degrees), "degrees": [int(d) for d in degrees], "cv": cv,
-            "weights": wts, "sigma_mm": sigma, "cov": cov, "suspects": suspects}
+    return {"coef": coef, "const": const, "frame": frame, "degree": max(degrees), "degrees": degrees, "cv": cv,
+            "weights": wts, "sigma_mm": sigma, "stage_error_mm": fit["sigma_u_mm"],
+            "noise_poly": noise_poly, "cov": cov, "feature_mean": fit["feature_mean"], "suspects": suspects,
+            "mode": mode}
 
 
 @register
@@ -164,25 +393,50 @@ class DirectModel(Model):
     """Direct polynomial mapping ``(v1, v2, D) → stage`` fitted on displacements (beyond the paper)."""
 
     name = "direct"
-    summary = "direct polynomial mapping (v1, v2, D) -> stage frame fitted on stage moves, degree by held-out positions"
+    summary = ("direct polynomial mapping (v1, v2, D) -> stage frame, stage errors as random effects, degree by "
+               "held-out positions; calibrates from a Z stack alone")
     accuracy_rank = 5
-    units = {"coef": "mm per normalised monomial", "const": "mm", "centroid_noise_px": "px", "sigma_mm": "mm"}
+    units = {"coef": "mm per normalised monomial", "const": "mm", "centroid_noise_px": "px", "sigma_mm": "mm",
+             "frame": "px (centre, scale); unit vector (direction)", "noise_poly": "mm^2 per power of Dn",
+             "cov": "mm^2 per normalised monomial^2", "feature_mean": "normalised monomial", "stage_scale_sigma": "relative", "reference_mm": "mm"}
 
-    def __init__(self, degree, coef, const, cov=None, sigma_mm=(0.0, 0.0, 0.0), centroid_noise_px=0.02, **kw):
+    def __init__(self, degree, coef, const, cov=None, sigma_mm=(0.0, 0.0, 0.0), centroid_noise_px=0.02, *,
+                 frame=None, noise_poly=None, stage_scale_sigma=0.0, reference_mm=None, feature_mean=None, **kw):
         super().__init__(**kw)
         self.degree, self.coef, self.const = int(degree), np.asarray(coef, float), np.asarray(const, float)
-        self.cov = None if cov is None else np.asarray(cov, float)
+        self.frame = dict(frame or LEGACY_FRAME)
+        cov = None if cov is None else np.asarray(cov, float)
+        if cov is not None and cov.ndim == 2:  # files before per-coordinate covariances: one, scaled by σ²
+            cov = np.stack([cov] * 3)
+        self.cov = cov
         self.sigma_mm = np.broadcast_to(np.asarray(sigma_mm, float), (3,)).copy()
         self.centroid_noise_px = float(centroid_noise_px)
+        if noise_poly is None:
+            noise_poly = np.column_stack([self.sigma_mm ** 2, np.zeros(3), np.zeros(3)])
+        self.noise_poly = np.asarray(noise_poly, float)
+        self.stage_scale_sigma = float(stage_scale_sigma)
+        self.feature_mean = np.zeros(len(self.coef)) if feature_mean is None else np.asarray(feature_mean, float)
+        self.reference_mm = self.const.copy() if reference_mm is None else np.asarray(reference_mm, float)
 
     @classmethod
-    def fit(cls, cal, *, degree: int | None = None, centroid_noise_px: float = 0.02, **_):
-        f = fit_direct(cal, degree)
+    def fit(cls, cal, *, degree: int | None = None, centroid_noise_px: float = 0.02, mode: str = "auto",
+            stage_scale_sigma: float = 0.0, **_):
+        """Fit on a calibration set. ``mode``: ``"auto"``, ``"moves"`` or ``"zstack"`` (module docstring);
+        ``stage_scale_sigma``: the stage's scale uncertainty (relative, 1σ, from its datasheet), added to the
+        per-point uncertainty."""
+        f = fit_direct(cal, degree, mode=mode)
         return cls(f["degree"], f["coef"], f["const"], f["cov"], f["sigma_mm"], centroid_noise_px,
-                   options={"degree_chosen_by": "held-out positions" if degree is None else "user"},
+                   frame=f["frame"], noise_poly=f["noise_poly"], stage_scale_sigma=stage_scale_sigma,
+                   reference_mm=f["const"], feature_mean=f["feature_mean"],
+                   options={"degree_chosen_by": "held-out positions" if degree is None else "user",
+                            "mode": f["mode"], "stage_scale_sigma": float(stage_scale_sigma)},
                    calibration={"held_out_rms_mm_by_degree": {str(k): v for k, v in f["cv"].items()},
                                 "degree_per_coordinate": f["degrees"],
+                                "frame": ("stage axes" if f["mode"] == "moves" else
+                                          "plate axes (x = ((cols+1)/2 - col) pitch, y = ((rows+1)/2 - row) "
+                                          "pitch) and the Z stage's direction"),
                                 "residual_sigma_mm": [float(v) for v in f["sigma_mm"]],
+                                "stage_error_per_position_mm": [float(v) for v in f["stage_error_mm"]],
                                 "down_weighted_rows": f["suspects"].to_dict(orient="records")})
 
     def reconstruct(self, w: np.ndarray) -> np.ndarray:
@@ -190,25 +444,47 @@ class DirectModel(Model):
         out = np.empty((len(w), 3))
         ct = np.ascontiguousarray(self.coef.T)  # (3, m): with monomial-major features, one fast BLAS product
         for a in range(0, len(w), 1 << 15):
-            f = features(w[a:a + (1 << 15)], self.degree).T  # (m, n), contiguous
+            f = features(w[a:a + (1 << 15)], self.degree, self.frame).T  # (m, n), contiguous
             out[a:a + (1 << 15)] = (ct @ f).T + self.const
         return out
 
-    def uncertainty(self, w: np.ndarray) -> np.ndarray:
-        """1σ ``(n, 3)`` [mm] per point: the calibration's residual spread per coordinate (centroid noise and
-        stage repeatability as the calibration saw them) and the coefficients' covariance. The centroid noise's
-        growth with defocus is not modelled: Z is under-covered far from focus (notebook 09)."""
+    def calibration_sigma(self, w: np.ndarray) -> np.ndarray:
+        """1σ ``(n, 3)`` [mm] of the calibration alone at noise-free image coordinates: the coefficients'
+        covariance along the point's (centred) monomials. Two independent calibrations differ at a point by
+        about ``√2`` times this (notebook 09's cross-validation diffs)."""
         w = np.atleast_2d(np.asarray(w, float))
-        phi = features(w, self.degree)
-        lev = np.einsum("ni,ij,nj->n", phi, self.cov, phi)[:, None] if self.cov is not None else 0.0
-        return np.sqrt(self.sigma_mm[None, :] ** 2 * (1.0 + lev))
+        if self.cov is None:
+            return np.zeros((len(w), 3))
+        c = features(w, self.degree, self.frame) - self.feature_mean  # the covariance is of centred features
+        return np.sqrt(np.stack([np.einsum("ni,ij,nj->n", c, self.cov[k], c) for k in range(3)], axis=1))
+
+    def uncertainty(self, w: np.ndarray) -> np.ndarray:
+        """1σ ``(n, 3)`` [mm] per point, from three independent parts:
+
+        * the scatter of one point, as a quadratic in the normalised depth ``Dn`` (the centroid noise grows
+          with defocus), measured within positions on the calibration set (floored at a quarter of its mean);
+        * the calibration's uncertainty (:meth:`calibration_sigma`);
+        * if declared, the stage's scale uncertainty times the distance from the frame's reference.
+        """
+        w = np.atleast_2d(np.asarray(w, float))
+        dn = _variables(w, self.frame)[:, 2][:, None]
+        noise = self.noise_poly[:, 0][None, :] + dn * self.noise_poly[:, 1] + dn ** 2 * self.noise_poly[:, 2]
+        var = np.maximum(noise, 0.25 * self.sigma_mm[None, :] ** 2) + self.calibration_sigma(w) ** 2
+        if self.stage_scale_sigma:
+            var += (self.stage_scale_sigma * (self.reconstruct(w) - self.reference_mm)) ** 2
+        return np.sqrt(var)
 
     def parameters_dict(self) -> dict:
         return {"degree": self.degree, "coef": self.coef.tolist(), "const": self.const.tolist(),
-                "cov": None if self.cov is None else self.cov.tolist(), "sigma_mm": self.sigma_mm.tolist(),
+                "frame": self.frame, "cov": None if self.cov is None else self.cov.tolist(),
+                "sigma_mm": self.sigma_mm.tolist(), "noise_poly": self.noise_poly.tolist(),
+                "stage_scale_sigma": self.stage_scale_sigma,
+                "feature_mean": self.feature_mean.tolist(), "reference_mm": self.reference_mm.tolist(),
                 "centroid_noise_px": self.centroid_noise_px}
 
     @classmethod
     def from_parameters(cls, p, calibration, options):
         return cls(p["degree"], p["coef"], p["const"], p.get("cov"), p.get("sigma_mm", 0.0),
-                   p.get("centroid_noise_px", 0.02), calibration=calibration, options=options)
+                   p.get("centroid_noise_px", 0.02), frame=p.get("frame"), noise_poly=p.get("noise_poly"),
+                   stage_scale_sigma=p.get("stage_scale_sigma", 0.0), reference_mm=p.get("reference_mm"),
+                   feature_mean=p.get("feature_mean"), calibration=calibration, options=options)
