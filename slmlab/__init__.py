@@ -20,7 +20,7 @@ from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View  #
 from .models import Model, available_models, calibrate, default_model_name, load_model  # noqa: E402
 from .simulate import (PAPER_TESTS, PRESETS, Session, paper_test, preset, simulate_set,  # noqa: E402
                        validation_session)
-from .paths import figures_dir, notebook_size, paper_reference, savefig, savetable  # noqa: E402
+from .paths import SHARED_DIR, figures_dir, notebook_size, paper_reference, savefig, savetable  # noqa: E402
 from . import direct, paper_models, pinhole  # noqa: E402,F401  (registers the models)
 from .evaluation import evaluate  # noqa: E402
 
@@ -30,5 +30,5 @@ __all__ = [
     "Microscope", "Optics", "View", "Stage", "Plate", "CentroidNoise",
     "Model", "available_models", "calibrate", "default_model_name", "load_model",
     "PRESETS", "PAPER_TESTS", "Session", "preset", "paper_test", "validation_session", "simulate_set",
-    "figures_dir", "notebook_size", "paper_reference", "savefig", "savetable", "evaluate",
+    "SHARED_DIR", "figures_dir", "notebook_size", "paper_reference", "savefig", "savetable", "evaluate",
 ]

@@ -66,7 +66,7 @@ from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, Calibra
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 
 __all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper", "tilted_session", "volume_session", "noise_floor",
-           "stage_origin"]
+           "stage_origin", "zstack_session", "zstack_plate", "zstack_frame"]
 
 # --------------------------------------------------------------------------------------------- presets
 _P1 = 9.35e-4  # decentring [1/mm]
@@ -242,6 +242,32 @@ def volume_session(n_positions: int = 60, seed: int = 0) -> Session:
     base = validation_session()
     return replace(base, positions=(0, 0, 0), grid=False, name="volume", volume_positions=n_positions,
                    volume_seed=seed)
+
+
+def zstack_session(n_positions: int = 31, step_mm: float | None = None) -> Session:
+    """A Z stack alone, as a lab with only a Z stage takes it: ``n_positions`` stage positions ``step_mm``
+    apart (default: spanning the validation's Z range [−2.25, 0] mm, 31 × 0.075 mm), X and Y fixed at zero.
+    Image it with :func:`zstack_plate`'s field-filling plate (``microscope.replace(moving_plate=zstack_plate())``)."""
+    if n_positions < 3:
+        raise SlmlabError(f"a Z stack needs at least 3 positions, not {n_positions}")
+    step = 2.25 / (n_positions - 1) if step_mm is None else float(step_mm)
+    return Session(step_mm=(0.1, 0.1, step), positions=(0, 0, n_positions), grid=False, name="zstack")
+
+
+def zstack_plate(rotation_deg: float = 0.4, tilt_deg: float = 0.05) -> Plate:
+    """A 31 × 31 dot plate at 0.2 mm pitch (6 × 6 mm): it fills the 6.1 mm field, so that a Z stack of it
+    alone samples the whole workspace. Mounted by hand: rotated ``rotation_deg`` in its plane and tilted
+    ``tilt_deg`` [degree]."""
+    return Plate(31, 31, 0.2, 0.1, fabrication_tolerance_um=0.25, rotation_deg=rotation_deg, tilt_deg=tilt_deg)
+
+
+def zstack_frame(microscope: Microscope, plate: Plate | None = None) -> np.ndarray:
+    """The 3 × 3 matrix taking stage-frame displacements [mm] to the frame a Z-stack calibration reconstructs
+    in: the plate's x and y axes (:meth:`Plate.nominal_points`) and the Z stage's direction, as axes."""
+    plate = plate or microscope.moving_plate
+    r = plate.orientation()
+    basis = np.column_stack([r[:, 0], r[:, 1], microscope.stage.axes[:, 2]])
+    return np.linalg.solve(basis, microscope.stage.axes)
 
 
 def tilted_session(n_poses: int = 16, max_tilt_deg: float = 20.0, *, with_sequences: Session | None = None,

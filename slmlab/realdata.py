@@ -1,0 +1,113 @@
+"""Third-party calibration data in slmlab's interchange format (``../shared/realdata/``).
+
+The 4th International PIV Challenge's case E (Kähler et al., Exp. Fluids 57:97, 2016; images and point lists
+via fluidimage) is a real stereo rig imaging a dot plate (15 mm pitch) at seven known Z positions, 1 mm apart:
+a Z stack alone, which :class:`slmlab.direct.DirectModel` calibrates in its ``"zstack"`` mode. Its point
+lists are UVMAT ``GeometryCalib`` XML files (``X Y Z u v`` per ``PointCoord``, X, Y, Z in ``CoordUnit``), one
+per camera and plane; a derived CSV of the points both cameras see is read too. Conversion only: nothing is
+fitted here, and nothing is tuned to these data.
+
+Conventions of the conversion (DATA_FORMAT.md): the first camera is the left view, the second the right;
+``u`` (column) is ``w1`` and ``v`` (row) is ``w2``; the Z positions, sorted, are the positions of sequence
+``Z``; the plate's rows and columns are numbered so that slmlab's plate convention
+(:func:`slmlab.direct.plate_xy`: ``x = ((cols + 1)/2 − col)·pitch``, ``y = ((rows + 1)/2 − row)·pitch``) gives
+back the data's own X and Y, with the plate's centre as the commanded stage X, Y.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .io import POINT_COLUMNS, SET_FORMAT, CalibrationSet
+
+__all__ = ["read_uvmat_points", "zstack_set_from_points", "pivchallenge_set", "PIV_CHALLENGE_DIR"]
+
+PIV_CHALLENGE_DIR = "pivchallenge4-caseE-stereo-calib"
+_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+_POINT = re.compile(r"<PointCoord[^>]*>\s*([^<]+?)\s*</PointCoord>", re.S)
+_UNIT = re.compile(r"<CoordUnit>\s*(\w+)\s*</CoordUnit>", re.S)
+
+
+def read_uvmat_points(path: str | Path) -> pd.DataFrame:
+    """One UVMAT ``GeometryCalib`` point list: columns ``X_mm, Y_mm, Z_mm, u_px, v_px``."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SlmlabError(f"cannot read a UVMAT point list ({exc.__class__.__name__})", path) from None
+    unit = _UNIT.search(text)
+    scale = _UNITS_MM.get(unit.group(1).lower() if unit else "mm")
+    if scale is None:
+        raise SlmlabError(f"unknown CoordUnit {unit.group(1)!r}; expected mm, cm or m", path)
+    rows = []
+    for k, m in enumerate(_POINT.finditer(text), 1):
+        vals = m.group(1).split()
+        try:
+            x, y, z, u, v = (float(t) for t in vals)
+        except ValueError:
+            raise SlmlabError(f"PointCoord {k} is not 'X Y Z u v': {m.group(1)!r}", path) from None
+        rows.append((x * scale, y * scale, z * scale, u, v))
+    if not rows:
+        raise SlmlabError("has no PointCoord entries; is it a UVMAT GeometryCalib file?", path)
+    return pd.DataFrame(rows, columns=["X_mm", "Y_mm", "Z_mm", "u_px", "v_px"])
+
+
+def zstack_set_from_points(common: pd.DataFrame, image_size_px=(1024, 1024), dot_diameter_mm: float = 1.0,
+                           source: str = "") -> CalibrationSet:
+    """A Z-stack calibration set from matched stereo points: columns ``X_mm, Y_mm, Z_mm`` (the plate's
+    lattice and the stage's Z) and ``u1_px, v1_px, u2_px, v2_px`` (first and second camera)
+    [mm, px]. ``dot_diameter_mm`` only describes the plate (meta.json)."""
+    need = ["X_mm", "Y_mm", "Z_mm", "u1_px", "v1_px", "u2_px", "v2_px"]
+    missing = [c for c in need if c not in common.columns]
+    if missing:
+        raise SlmlabError(f"matched points lack the column(s) {', '.join(missing)}")
+    df = common[need].astype(float).dropna()
+    xs, ys, zs = (np.unique(df[c].round(9)) for c in ("X_mm", "Y_mm", "Z_mm"))
+    steps = np.concatenate([np.diff(xs), np.diff(ys)])
+    if len(zs) < 3 or len(steps) == 0:
+        raise SlmlabError("a Z stack needs at least 3 planes and a lattice of at least 2 × 2 points")
+    pitch = float(steps.min())
+    if not np.allclose(steps / pitch, np.round(steps / pitch), atol=1e-6):
+        raise SlmlabError(f"the X, Y positions are not on one lattice (smallest spacing {pitch:g} mm)")
+    cols = int(round((xs[-1] - xs[0]) / pitch)) + 1
+    rows = int(round((ys[-1] - ys[0]) / pitch)) + 1
+    cx, cy = (xs[0] + xs[-1]) / 2, (ys[0] + ys[-1]) / 2
+    pts = pd.DataFrame({
+        "sequence": "Z",
+        "position": np.searchsorted(zs, df["Z_mm"].round(9).to_numpy()) + 1,
+        "stage_x_mm": cx, "stage_y_mm": cy, "stage_z_mm": df["Z_mm"].to_numpy(),
+        "row": np.rint((rows + 1) / 2 - (df["Y_mm"].to_numpy() - cy) / pitch).astype(int),
+        "col": np.rint((cols + 1) / 2 - (df["X_mm"].to_numpy() - cx) / pitch).astype(int),
+        "wl1": df["u1_px"].to_numpy(), "wl2": df["v1_px"].to_numpy(),
+        "wr1": df["u2_px"].to_numpy(), "wr2": df["v2_px"].to_numpy(),
+    })[POINT_COLUMNS].sort_values(["position", "row", "col"], kind="stable").reset_index(drop=True)
+    plate = {"rows": rows, "cols": cols, "pitch_mm": pitch, "dot_diameter_mm": float(dot_diameter_mm)}
+    meta = {"format": SET_FORMAT, "image_size_px": [int(v) for v in image_size_px],
+            "plates": {"grid": plate, "moving": plate}, "source": source}
+    return CalibrationSet(points=pts, meta=meta)
+
+
+def pivchallenge_set(folder: str | Path, cameras=("Camera_01", "Camera_03")) -> CalibrationSet:
+    """The PIV Challenge case E Z stack as a calibration set, from its UVMAT point lists
+    (``{camera}/img_{i}.xml``), the points both cameras see; raises :class:`SlmlabError` if absent."""
+    folder = Path(folder)
+    frames = []
+    for cam in cameras:
+        files = sorted((folder / cam).glob("img_*.xml"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
+        if not files:
+            raise SlmlabError(f"no UVMAT point lists {cam}/img_*.xml", folder)
+        frames.append(pd.concat([read_uvmat_points(f) for f in files], ignore_index=True))
+    key = ["X_mm", "Y_mm", "Z_mm"]
+    for f in frames:
+        f[key] = f[key].round(6)
+    common = frames[0].merge(frames[1], on=key, suffixes=("1", "2"))
+    common = common.rename(columns={"u_px1": "u1_px", "v_px1": "v1_px", "u_px2": "u2_px", "v_px2": "v2_px"})
+    # the dots are about 35 px across at about 11.9 px/mm (camera 1): 3 mm
+    return zstack_set_from_points(common, (1024, 1024), dot_diameter_mm=3.0,
+                                  source=f"4th PIV Challenge case E (Kähler et al. 2016) via fluidimage, "
+                                         f"{cameras[0]} (left) and {cameras[1]} (right), UVMAT point lists")
