@@ -16,7 +16,8 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
            "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
-           "plot_trajectory", "plot_volumetric_errors"]
+           "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
+           "plot_leave_one_plane_out"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -455,3 +456,69 @@ def plot_volumetric_errors(errors: dict, ax=None):
     ax.legend(fontsize=7, markerscale=4)
     ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
     return ax
+
+
+def plot_cross_validation_diff(diff, axes=None, *, width_in: float = 9.0):
+    """mrcal-style cross-validation diffs over the field (``diff`` from
+    :func:`slmlab.study.cross_validation_diff`): ``|ΔX, ΔY|`` (top) and ``|ΔZ|`` (bottom) [µm] between two
+    independent calibrations, one column per depth, one colour scale per row."""
+    depths = sorted(diff["depth_mm"].unique())
+    if axes is None:
+        _, axes = new_figure(2, len(depths), width_in=width_in, height_in=5.4, sharex=True, sharey=True)
+    axes = np.atleast_2d(axes)
+    rows = [("|ΔX, ΔY| [µm]", np.hypot(diff["dX_um"], diff["dY_um"])), ("|ΔZ| [µm]", np.abs(diff["dZ_um"]))]
+    for r, (label, values) in enumerate(rows):
+        vmax = float(np.percentile(values, 99))
+        for c, depth in enumerate(depths):
+            sel = (diff["depth_mm"] == depth).to_numpy()
+            ax = axes[r, c]
+            sc = ax.scatter(diff["x_mm"][sel], diff["y_mm"][sel], c=values[sel], s=14, marker="s", vmin=0,
+                            vmax=vmax, cmap="viridis")
+            ax.set_aspect("equal")
+            if r == 0:
+                ax.set_title(f"depth {depth:+.1f} mm", fontsize=9)
+            if r == 1:
+                ax.set_xlabel("x [mm]")
+            if c == 0:
+                ax.set_ylabel("y [mm]")
+        ax.figure.colorbar(sc, ax=list(axes[r]), label=label, shrink=0.9)
+    return axes
+
+
+def plot_accuracy_vs_positions(table, axes=None):
+    """RMS displacement error over the noise floor against the number of calibration positions, per
+    coordinate (``table``: :func:`slmlab.study.accuracy_vs_positions` rows with a ``case`` column), log
+    scale."""
+    if axes is None:
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.4, sharey=True)
+    for ax, c in zip(axes, "XYZ"):
+        for (case, model), d in table.groupby(["case", "model"], sort=False):
+            d = d.sort_values("positions")
+            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "s--", ms=3,
+                    label=f"{model}, {case}")
+        ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
+        ax.set_yscale("log")
+        ax.set_xscale("log")
+        ax.set_xlabel("calibration positions")
+        ax.set_title(c, fontsize=10)
+    axes[0].set_ylabel("RMS error / noise floor")
+    axes[0].legend(fontsize=7)
+    return axes
+
+
+def plot_leave_one_plane_out(table, axes=None):
+    """Real Z stack, leave one plane out: RMS error [µm] of the left-out plane per coordinate, per variant
+    (solid), and the default model's mean predicted 1σ (dashed)."""
+    if axes is None:
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.2, sharex=True)
+    for ax, c in zip(axes, "XYZ"):
+        for label, d in table.groupby("model", sort=False):
+            ax.plot(d["Z_mm"], 1e3 * d[f"E{c}_mm"], "o-", ms=3, label=f"{label}: RMS error")
+        first = table[table["model"] == table["model"].iloc[0]]
+        ax.plot(first["Z_mm"], 1e3 * first[f"s{c}_mm"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
+        ax.set_xlabel("left-out plane Z [mm]")
+        ax.set_title(c, fontsize=10)
+        ax.set_ylim(bottom=0)
+    axes[0].set_ylabel("µm")
+    axes[0].legend(fontsize=7)
+    return axes

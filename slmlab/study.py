@@ -16,7 +16,9 @@ from .simulate import PAPER_TESTS, Session, simulate_set
 from .vision import fit_paper
 
 __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",
-           "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors"]
+           "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
+           "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out", "workspace_grid",
+           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions"]
 
 TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
                 "KZX", "BZX_mm", "KZY", "BZY_mm"]
@@ -112,21 +114,23 @@ def z_calibration_samples(cal, params) -> pd.DataFrame:
     return pd.DataFrame({"position": df["position"].to_numpy()[keep], "dD_px": dd[:, 0], "dZ_A_mm": ds[:, 2]})
 
 
-def volumetric_comparison(models: dict, val) -> "pd.DataFrame":
+def volumetric_comparison(models: dict, val, frame: np.ndarray | None = None) -> "pd.DataFrame":
     """RMS displacement error [µm] per coordinate on a volumetric run ``V`` (relative to its position 1,
     against the truth) for each model ``{name: model}`` and for the simulator's own true-model
-    triangulation (the noise floor)."""
+    triangulation (the noise floor). ``frame``: a 3 × 3 matrix taking stage-frame displacements to the
+    models' frame (for a Z-stack calibration, :func:`slmlab.simulate.zstack_frame`)."""
     from .simulate import noise_floor
     from .vision import displacements
 
     v = val.points[val.points["sequence"] == "V"]
     ok = v[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1).to_numpy()
     v = v[ok]
-    truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    m = np.eye(3) if frame is None else np.asarray(frame, float)
+    truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
     dt, _, _ = displacements(v, truth)
     w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
     rows = []
-    floor = noise_floor(val)[ok]
+    floor = noise_floor(val)[ok] @ m.T
     for name, p in [("noise floor (true model)", floor)] + [(n, m.reconstruct(w)) for n, m in models.items()]:
         dp, _, _ = displacements(v, p)
         e = 1e3 * np.sqrt(np.mean((dp - dt) ** 2, axis=0))
@@ -138,30 +142,194 @@ def volumetric_comparison(models: dict, val) -> "pd.DataFrame":
     return df
 
 
-def uncertainty_coverage(model, val, share: float = 95.0) -> dict:
+def uncertainty_coverage(model, val, share: float = 95.0, frame: np.ndarray | None = None) -> dict:
     """Share [%] of absolute errors (after removing the frame's constant offset) inside the model's
-    ``share`` % intervals, per coordinate, on the run's V sequence."""
+    ``share`` % intervals, per coordinate, on the run's V sequence (``frame`` as in
+    :func:`volumetric_comparison`)."""
     from scipy.stats import norm
 
     v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
     w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
-    e = model.reconstruct(w) - val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    m = np.eye(3) if frame is None else np.asarray(frame, float)
+    e = model.reconstruct(w) - val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
     e -= e.mean(axis=0)
     z = norm.ppf(0.5 + share / 200)
     inside = np.abs(e) <= z * model.uncertainty(w)
     return {c: float(100 * inside[:, k].mean()) for k, c in enumerate("XYZ")}
 
 
-def volumetric_errors(models: dict, val) -> dict:
-    """Per sample of V: the stage Z of the position and the displacement error magnitude [µm], per model."""
+def volumetric_errors(models: dict, val, frames: dict | None = None) -> dict:
+    """Per sample of V: the stage Z of the position and the displacement error magnitude [µm], per model
+    (``frames``: per model name, a matrix as in :func:`volumetric_comparison`)."""
     from .vision import displacements
 
     v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
-    truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
-    dt, st, keep = displacements(v, truth)
-    z = v["stage_z_mm"].to_numpy()[keep]
+    truth0 = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     out = {}
     for name, m in models.items():
+        frame = (frames or {}).get(name)
+        truth = truth0 if frame is None else truth0 @ np.asarray(frame).T
+        dt, st, keep = displacements(v, truth)
+        z = v["stage_z_mm"].to_numpy()[keep]
         dp, _, _ = displacements(v, m.reconstruct(v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)))
         out[name] = pd.DataFrame({"Z_mm": z, "error_um": 1e3 * np.linalg.norm(dp - dt, axis=1)})
     return out
+
+
+# ----------------------------------------------------------------------------- beyond the paper (notebook 09)
+STAGE_ERRORS = ("scale_error", "lead_error_um", "straightness_um", "positioning_noise_um")
+
+
+def perfect_stage(microscope: Microscope, keep: tuple[str, ...] = ()) -> Microscope:
+    """The microscope with a stage free of scale, lead, straightness and positioning errors, except those
+    named in ``keep`` (its axes' skew and tilts stay: they are part of the stage frame)."""
+    from dataclasses import replace
+
+    st = microscope.stage
+    zero = {"scale_error": (0.0, 0.0, 0.0), "lead_error_um": 0.0, "straightness_um": (0.0, 0.0, 0.0),
+            "positioning_noise_um": 0.0}
+    return replace(microscope, stage=replace(st, **{k: v for k, v in zero.items() if k not in keep}))
+
+
+def stage_error_budget(microscope: Microscope, n_volume: int, seed: int = 1) -> pd.DataFrame:
+    """What each of the stage's errors costs the default model: calibrated on Test 1 and validated on a
+    volume run, with the stage perfect, with one error at a time, and with all of them. Per row: the RMS
+    displacement error over the noise floor per coordinate and the 95 % intervals' coverage [%]."""
+    from .models import calibrate
+    from .simulate import simulate_set, volume_session, paper_test
+
+    cases = [("perfect stage", ())] + [(f"only {k}", (k,)) for k in STAGE_ERRORS] + [("all (paper preset)", STAGE_ERRORS)]
+    rows = []
+    for label, keep in cases:
+        m = perfect_stage(microscope, keep)
+        cal = simulate_set(m, paper_test(1), seed=seed)
+        val = simulate_set(m, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+        model = calibrate(cal)
+        t = volumetric_comparison({"direct": model}, val).set_index("model").loc["direct"]
+        cov = uncertainty_coverage(model, val)
+        rows.append({"stage": label, **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"},
+                     **{f"{c}_coverage_percent": cov[c] for c in "XYZ"}})
+    return pd.DataFrame(rows)
+
+
+def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 31, seed: int = 1):
+    """The default model calibrated from a Z stack alone (a field-filling plate, ``n_planes`` positions over
+    the validation's Z range) beside the same model calibrated on Test 1's three axes, on one volume run.
+    Errors are compared in the Z stack's frame (:func:`slmlab.simulate.zstack_frame`) for the Z-stack model.
+    Returns ``(table, zstack_model, val, frame)``: per model, RMS displacement error [µm] and over the floor,
+    and the 95 % intervals' coverage [%]."""
+    from .models import calibrate
+    from .simulate import simulate_set, volume_session, paper_test, zstack_frame, zstack_plate, zstack_session
+
+    mz = microscope.replace(moving_plate=zstack_plate())
+    zcal = simulate_set(mz, zstack_session(n_planes), seed=seed)
+    zmodel = calibrate(zcal)
+    moves = calibrate(simulate_set(microscope, paper_test(1), seed=seed))
+    val = simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+    frame = zstack_frame(mz)
+    rows = []
+    for label, model, fr in (("Z stack alone", zmodel, frame), ("X, Y, Z sequences (Test 1)", moves, None)):
+        t = volumetric_comparison({label: model}, val, frame=fr).set_index("model").loc[label]
+        cov = uncertainty_coverage(model, val, frame=fr)
+        rows.append({"calibration": label, "positions": int(model.calibration["positions"].get("Z", 0)) if label.startswith("Z")
+                     else int(sum(model.calibration["positions"].get(k, 0) for k in "XYZ")),
+                     "degree_XYZ": str(model.calibration["degree_per_coordinate"]),
+                     **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"}, **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"},
+                     **{f"{c}_coverage_percent": cov[c] for c in "XYZ"}})
+    return pd.DataFrame(rows), zmodel, val, frame
+
+
+def leave_one_plane_out(cal, variants: dict[str, dict]) -> pd.DataFrame:
+    """Leave-one-plane-out validation of Z-stack calibrations on a set with known X, Y, Z per dot (a real
+    Z stack): for each plane, calibrate on the others with each variant's options (``{label: options}``)
+    and reconstruct the left-out plane. Per plane and variant: RMS error [mm] per coordinate, mean predicted
+    1σ [mm], and the share of errors inside the 95 % intervals [%]."""
+    from .direct import plate_xy
+    from .io import CalibrationSet
+    from .models import calibrate
+
+    pts = cal.points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    rows = []
+    for plane in sorted(pts["position"].unique()):
+        train = CalibrationSet(pts[pts["position"] != plane].copy(), cal.meta)
+        test = pts[pts["position"] == plane]
+        xy = plate_xy(test["row"], test["col"], cal.plate("Z")) + test[["stage_x_mm", "stage_y_mm"]].to_numpy()
+        truth = np.column_stack([xy, test["stage_z_mm"].to_numpy()])
+        w = test[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+        for label, options in variants.items():
+            model = calibrate(train, **options)
+            e, sig = model.reconstruct(w) - truth, model.uncertainty(w)
+            rows.append({"plane": int(plane), "Z_mm": float(test["stage_z_mm"].iloc[0]), "model": label,
+                         "degree_XYZ": str(model.calibration["degree_per_coordinate"]),
+                         **{f"E{c}_mm": float(np.sqrt(np.mean(e[:, k] ** 2))) for k, c in enumerate("XYZ")},
+                         **{f"s{c}_mm": float(np.mean(sig[:, k])) for k, c in enumerate("XYZ")},
+                         "inside_95_percent": float(100 * np.mean(np.abs(e) <= 1.959964 * sig))})
+    return pd.DataFrame(rows)
+
+
+def workspace_grid(microscope: Microscope, session, *, n_xy: int = 25, depths_mm=(-1.0, 0.0, 1.0),
+                   margin_mm: float = 0.3) -> pd.DataFrame:
+    """Noise-free stereo image coordinates of a grid of points over the workspace: ``n_xy × n_xy`` points
+    across the field at each depth (relative to focus), seen by both views. Columns ``depth_mm, x_mm, y_mm``
+    (microscope frame) and ``wl1, wl2, wr1, wr2`` [px]: the query points of :func:`cross_validation_diff`."""
+    o = microscope.optics
+    half = np.array(o.image_size_px) * o.pixel_mm / 2 - margin_mm
+    x, y = np.meshgrid(np.linspace(-half[0], half[0], n_xy), np.linspace(-half[1], half[1], n_xy))
+    frames = []
+    for z in depths_mm:
+        p = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+        w = microscope.project(p)
+        ok = microscope.visible(w, microscope.moving_plate.dot_diameter_mm).all(axis=1)
+        frames.append(pd.DataFrame({"depth_mm": z, "x_mm": p[ok, 0], "y_mm": p[ok, 1],
+                                    **{c: w[ok, k] for k, c in enumerate(["wl1", "wl2", "wr1", "wr2"])}}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def cross_validation_diff(model_a, model_b, grid: pd.DataFrame) -> pd.DataFrame:
+    """mrcal-style cross-validation: two calibrations from independent data reconstruct the same image
+    points; their difference [µm] (less its mean over the grid, a frame offset) beside what the models
+    predict for it, ``√(σa² + σb²)`` of the calibrations alone. Adds ``dX_um, dY_um, dZ_um`` and
+    ``predicted_{X,Y,Z}_um`` to ``grid``."""
+    w = grid[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    d = model_a.reconstruct(w) - model_b.reconstruct(w)
+    d -= d.mean(axis=0)
+    pred = np.sqrt(model_a.calibration_sigma(w) ** 2 + model_b.calibration_sigma(w) ** 2)
+    out = grid.copy()
+    for k, c in enumerate("XYZ"):
+        out[f"d{c}_um"] = 1e3 * d[:, k]
+        out[f"predicted_{c}_um"] = 1e3 * pred[:, k]
+    return out
+
+
+def subsample_positions(cal, every: int):
+    """The calibration set with every ``every``-th position of each moving sequence (the first always kept),
+    renumbered 1, 2, …; static sequences (``grid``) unchanged."""
+    from .io import CalibrationSet
+
+    pts = cal.points
+    moving = pts["sequence"].isin(["X", "Y", "Z", "V"])
+    keep = ~moving | ((pts["position"] - 1) % every == 0)
+    out = pts[keep].copy()
+    out.loc[moving[keep], "position"] = (out.loc[moving[keep], "position"] - 1) // every + 1
+    return CalibrationSet(out.reset_index(drop=True), cal.meta)
+
+
+def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 3, 4, 6, 8), *, seed: int = 1,
+                          models=("direct", "paper-m2")) -> pd.DataFrame:
+    """How accuracy scales with the number of calibration positions: Test 1 thinned to every k-th position,
+    each model calibrated on it and validated on one volume run. Per row: positions, model, RMS displacement
+    error [µm] and over the floor per coordinate."""
+    from .models import calibrate
+    from .simulate import simulate_set, volume_session, paper_test
+
+    full = simulate_set(microscope, paper_test(1), seed=seed)
+    val = simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+    rows = []
+    for k in everies:
+        cal = subsample_positions(full, k)
+        n = int(cal.points[cal.points["sequence"].isin(["X", "Y", "Z"])].groupby("sequence")["position"].nunique().sum())
+        for name in models:
+            t = volumetric_comparison({name: calibrate(cal, name)}, val).set_index("model").loc[name]
+            rows.append({"every": k, "positions": n, "model": name, **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"},
+                         **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"}})
+    return pd.DataFrame(rows)

@@ -2,21 +2,21 @@
 
 import subprocess
 import sys
-from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 import pytest
 
 import slmlab
-from slmlab.simulate import noise_floor, volume_session
+from slmlab import realdata, study
+from slmlab.direct import LEGACY_FRAME, DirectModel, plate_xy
+from slmlab.paths import SHARED_DIR
+from slmlab.simulate import noise_floor, volume_session, zstack_frame, zstack_plate, zstack_session
 from slmlab.vision import displacements
 
 
 def perfect_stage():
-    m = slmlab.preset("paper")
-    return replace(m, stage=replace(m.stage, scale_error=(0, 0, 0), lead_error_um=0.0, straightness_um=(0, 0, 0),
-                                    positioning_noise_um=0.0))
+    return study.perfect_stage(slmlab.preset("paper"))
 
 
 def displacement_rms(val, positions_mm):
@@ -82,3 +82,107 @@ def test_reconstruct_adds_uncertainty_columns(tmp_path, volume):
     df = pd.read_csv(out)
     assert {"sX_mm", "sY_mm", "sZ_mm"} <= set(df.columns)
     assert (df[["sX_mm", "sY_mm", "sZ_mm"]].dropna() > 0).all().all()
+
+
+# ----------------------------------------------------------------------------- uncertainty, cross-validation
+def test_uncertainty_intervals_hold_what_they_promise_on_a_perfect_stage(volume):
+    cal, val = volume
+    coverage = study.uncertainty_coverage(slmlab.calibrate(cal), val)
+    assert all(abs(coverage[c] - 95) <= 2 for c in "XYZ"), coverage
+
+
+def test_independent_calibrations_differ_about_as_much_as_predicted():
+    m = perfect_stage()
+    a, b = (slmlab.calibrate(slmlab.simulate_set(m, slmlab.paper_test(2), seed=s)) for s in (11, 12))
+    d = study.cross_validation_diff(a, b, study.workspace_grid(m, slmlab.paper_test(2), n_xy=9))
+    for c in "XYZ":
+        ratio = np.sqrt(np.mean(d[f"d{c}_um"] ** 2)) / np.sqrt(np.mean(d[f"predicted_{c}_um"] ** 2))
+        assert 0.4 < ratio < 2.5, (c, ratio)
+
+
+def test_model_files_without_a_fitted_frame_still_load(tmp_path, volume):
+    """Files written before the frame was fitted (fixed normalisation, disparity along w1) reconstruct as
+    they did."""
+    cal, _ = volume
+    model = slmlab.calibrate(cal, degree=2)
+    legacy = DirectModel(model.degree, np.zeros_like(model.coef), model.const)
+    assert legacy.frame == LEGACY_FRAME
+    w = cal.points[["wl1", "wl2", "wr1", "wr2"]].dropna().to_numpy()[:5]
+    assert np.allclose(legacy.reconstruct(w), model.const)
+    path = legacy.save(tmp_path / "old.json")
+    assert np.allclose(slmlab.load_model(path).reconstruct(w), model.const)
+
+
+def test_thinning_positions_renumbers_each_sequence():
+    cal = slmlab.simulate_set(perfect_stage(), slmlab.paper_test(5), seed=1)
+    thin = study.subsample_positions(cal, 3)
+    for s in "XYZ":
+        n = cal.sequence(s)["position"].nunique()
+        assert sorted(thin.sequence(s)["position"].unique()) == list(range(1, (n - 1) // 3 + 2))
+    assert len(thin.sequence("grid")) == len(cal.sequence("grid"))
+
+
+# ----------------------------------------------------------------------------- Z stack alone
+@pytest.fixture(scope="module")
+def zstack():
+    m = perfect_stage()
+    mz = m.replace(moving_plate=zstack_plate())
+    cal = slmlab.simulate_set(mz, zstack_session(11), seed=1)
+    val = slmlab.simulate_set(m, volume_session(20, seed=5), seed=7)
+    return cal, val, zstack_frame(mz)
+
+
+def test_a_z_stack_alone_calibrates_to_the_noise_floor(zstack):
+    cal, val, frame = zstack
+    assert set(cal.points["sequence"]) == {"Z"}
+    model = slmlab.calibrate(cal)
+    assert model.name == "direct" and model.options["mode"] == "zstack"
+    t = study.volumetric_comparison({"z": model}, val, frame=frame).set_index("model").loc["z"]
+    assert all(t[f"{c}_vs_floor"] <= 1.2 for c in "XYZ"), t
+    # in the stage frame instead, the plate's mounting rotation shows as large X, Y errors: the frame matters
+    wrong = study.volumetric_comparison({"z": model}, val).set_index("model").loc["z"]
+    assert wrong["X_vs_floor"] > 5
+
+
+def test_mode_moves_on_a_z_stack_is_a_clear_error(zstack):
+    cal, _, _ = zstack
+    with pytest.raises(slmlab.SlmlabError, match="zstack"):
+        slmlab.calibrate(cal, mode="moves")
+
+
+def test_the_disparity_direction_is_found_from_the_data(volume):
+    cal, _ = volume
+    u = slmlab.calibrate(cal).frame["direction"]
+    assert abs(u[0]) > 0.999   # a CMO microscope: depth moves the disparity along w1
+
+
+# ----------------------------------------------------------------------------- the real Z stack
+PIV = SHARED_DIR / "realdata" / realdata.PIV_CHALLENGE_DIR
+
+
+@pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
+def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_path):
+    cal = realdata.pivchallenge_set(PIV)
+    csv = pd.read_csv(PIV / "stereo_common_points.csv")
+    assert len(cal.points) == len(csv) == 112
+    assert sorted(cal.points["position"].unique()) == list(range(1, 8))
+    back = slmlab.read_set(slmlab.write_set(tmp_path / "piv", cal))
+    xy = plate_xy(back.points["row"], back.points["col"], back.plate("Z")) + back.points[["stage_x_mm", "stage_y_mm"]].to_numpy()
+    merged = pd.DataFrame({"X_mm": xy[:, 0], "Y_mm": xy[:, 1], "Z_mm": back.points["stage_z_mm"],
+                           "u_cam1_px": back.points["wl1"], "v_cam3_px": back.points["wr2"]})
+    joined = merged.round(6).merge(csv.round(6), on=["X_mm", "Y_mm", "Z_mm", "u_cam1_px", "v_cam3_px"])
+    assert len(joined) == 112      # every converted point is one of the CSV's, at its own X, Y, Z
+
+
+@pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
+def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
+    cal = realdata.pivchallenge_set(PIV)
+    model = slmlab.calibrate(cal)
+    assert model.options["mode"] == "zstack" and abs(model.frame["direction"][1]) > 0.99  # oblique camera: rows
+    lopo = study.leave_one_plane_out(cal, {"default": {}, "linear": {"degree": 1}})
+    rms = lopo.groupby("model")[["EX_mm", "EY_mm", "EZ_mm"]].apply(lambda g: np.sqrt((g ** 2).mean()))
+    assert (rms.loc["linear"] > 3 * rms.loc["default"]).all(), rms   # the initial linear model is not enough
+    d = lopo[lopo["model"] == "default"]
+    for c in "XYZ":
+        ratio = np.sqrt(np.mean(d[f"E{c}_mm"] ** 2)) / np.mean(d[f"s{c}_mm"])
+        assert 0.5 < ratio < 2.0, (c, ratio)
