@@ -20,7 +20,7 @@ $(STAMP): environment.txt pyproject.toml
 	touch $(STAMP)
 
 reproduce: $(STAMP)
-	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/figures $(PY) -m slmlab.notebooks --timing .reproduce_seconds notebooks/*.ipynb
+	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/figures $(PY) -m slmlab.notebooks --timing .reproduce_seconds --jobs 2 notebooks/*.ipynb
 	$(PY) -m slmlab bench --markdown figures/table6_speed.md --reproduce-seconds-file .reproduce_seconds
 
 test: $(STAMP)

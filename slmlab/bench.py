@@ -251,7 +251,7 @@ def markdown(lines: list[BenchLine], reproduce_s: float | None = None) -> str:
         out.append(f"| {l.name}{note} | {l.ours_s:.4f} | {l.reference} | {ref} | {ratio} | {l.target} | "
                    f"{'yes' if l.met else 'NO'} |")
     if reproduce_s is not None:
-        out.append(f"| make reproduce, every notebook at full size | {reproduce_s:.1f} | | | | <= 180 s | "
+        out.append(f"| make reproduce, every notebook at full size (wall time, 2 at a time on 2 cores) | {reproduce_s:.1f} | | | | <= 180 s | "
                    f"{'yes' if reproduce_s <= 180 else 'NO'} |")
     out += ["", "Timings are measurements: unlike every other file in figures/, this one is not byte-stable."]
     return "\n".join(out) + "\n"

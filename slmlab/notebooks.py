@@ -1,7 +1,7 @@
 """Execute the notebooks top to bottom, each in a fresh kernel (nbclient): ``make reproduce`` and the tests.
 
-``python -m slmlab.notebooks NB.ipynb ...`` runs them in the order given, with the working directory set to
-the notebook's folder, and fails (exit 1) at the first notebook that raises. Outputs are not written back:
+``python -m slmlab.notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
+with the working directory set to the notebook's folder, and fails (exit 1) if one raises. Outputs are not written back:
 notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
 """
 
@@ -39,25 +39,36 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``[--timing FILE] [--jobs N] NOTEBOOK.ipynb ...``: run the notebooks, ``N`` at a time (each in its own
+    kernel process), and write the wall time [s] to ``FILE``."""
     args = list(argv if argv is not None else sys.argv[1:])
-    timing = None
-    if args[:1] == ["--timing"] and len(args) > 1:  # write the total wall time [s] to this file
-        timing, args = Path(args[1]), args[2:]
+    timing, jobs = None, 1
+    while args[:1] in (["--timing"], ["--jobs"]) and len(args) > 1:
+        if args[0] == "--timing":  # write the total wall time [s] to this file
+            timing = Path(args[1])
+        else:
+            jobs = max(1, int(args[1]))
+        args = args[2:]
     paths = sorted(args)
     if not paths:
-        print("usage: python -m slmlab.notebooks NOTEBOOK.ipynb ...", file=sys.stderr)
+        print("usage: python -m slmlab.notebooks [--timing FILE] [--jobs N] NOTEBOOK.ipynb ...", file=sys.stderr)
         return 2
-    total = 0.0
-    for p in paths:
-        print(f"running {p} ...", flush=True)
-        try:
-            dt = run_notebook(p)
-        except Exception as exc:  # noqa: BLE001 - report which notebook failed, then fail
-            print(f"FAILED {p}: {type(exc).__name__}: {str(exc)[-2000:]}", file=sys.stderr)
-            return 1
-        total += dt
-        print(f"  done in {dt:.1f} s", flush=True)
-    print(f"{len(paths)} notebooks in {total:.1f} s")
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(run_notebook, p): p for p in paths}
+        for f in as_completed(futures):
+            try:
+                dt = f.result()
+            except Exception as exc:  # noqa: BLE001 - report which notebook failed, then fail
+                print(f"FAILED {futures[f]}: {type(exc).__name__}: {str(exc)[-2000:]}", file=sys.stderr)
+                for g in futures:
+                    g.cancel()
+                return 1
+            print(f"{futures[f]} done in {dt:.1f} s", flush=True)
+    total = time.perf_counter() - t0
+    print(f"{len(paths)} notebooks in {total:.1f} s (wall time, {jobs} at a time)")
     if timing is not None:
         timing.write_text(f"{total:.1f}\n")
     return 0
