@@ -17,7 +17,7 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
-           "plot_leave_one_plane_out"]
+           "plot_leave_one_plane_out", "plot_floor_ratios"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -494,11 +494,14 @@ def plot_accuracy_vs_positions(table, axes=None):
     for ax, c in zip(axes, "XYZ"):
         for (case, model), d in table.groupby(["case", "model"], sort=False):
             d = d.sort_values("positions")
-            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "s--", ms=3,
-                    label=f"{model}, {case}")
+            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "--", ms=3,
+                    marker="o" if model == "direct" else ("s" if "paper" in case else "x"), label=f"{model}, {case}")
         ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
+        ticks = sorted(table["positions"].unique())
+        ax.set_xticks(ticks, [str(t) for t in ticks], fontsize=7)
+        ax.minorticks_off()
         ax.set_xlabel("calibration positions")
         ax.set_title(c, fontsize=10)
     axes[0].set_ylabel("RMS error / noise floor")
@@ -522,3 +525,20 @@ def plot_leave_one_plane_out(table, axes=None):
     axes[0].set_ylabel("µm")
     axes[0].legend(fontsize=7)
     return axes
+
+
+def plot_floor_ratios(table, ax=None, *, by=("microscope", "calibration")):
+    """RMS displacement error over the noise floor per coordinate, one group of bars per coordinate and one
+    bar per row of ``table`` (labelled by the columns ``by``); the dotted line is 1.2 × the floor."""
+    ax = _ax(ax)
+    n = len(table)
+    width = 0.8 / n
+    for i, (_, row) in enumerate(table.iterrows()):
+        ax.bar(np.arange(3) + (i - (n - 1) / 2) * width, [row[f"{c}_vs_floor"] for c in "XYZ"], width,
+               label=", ".join(str(row[b]) for b in by))
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
+    ax.set_xticks(range(3), ["X", "Y", "Z"])
+    ax.set_ylabel("RMS displacement error / noise floor")
+    ax.legend(fontsize=7)
+    return ax
