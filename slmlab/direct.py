@@ -27,10 +27,15 @@ are estimated from the residuals (within and between positions), and the fit is 
 (quasi-demeaning by position): the polynomial's shape comes from the many dots within each position, and only
 its large-scale part from the (noisy) stage moves.
 
-**Stage scale.** A stage's scale error is invisible in its own commanded moves (and a plate cannot stand in
-as the length reference of the stage frame: that frame's axes are not orthogonal, and a Y axis tilted 0.8° out
-of the plate's plane alone changes in-plane lengths by 1e-4, as much as a typical scale error). Give the
-stage's datasheet accuracy as ``stage_scale_sigma`` (relative, 1σ) to include it in the uncertainty.
+**Length reference.** A stage's scale error is invisible in its own commanded moves. Whenever the set has
+a static ``grid`` pair, its dots are reconstructed and fitted to the plate's nominal lattice, and the metric
+of the stage frame's X-Y block follows (:func:`plate_length_reference`): the stage's X and Y scale errors
+relative to the plate, and the cosine between its X and Y axes, are reported. With
+``length_reference="plate"`` the X and Y scales are then taken from the plate. That is not the default: the
+plate lies in no plane of the stage frame, and the cosines between the stage's Z axis and its X and Y axes,
+which no plate in one pose can measure, enter at second order (about 2e-5 on the ``paper`` preset, a fifth of
+its stage's scale errors). Z has no such reference (a plate is flat); for axes whose scale is the stage's, a
+user can declare its uncertainty from the stage's datasheet as ``stage_scale_sigma`` (relative, 1σ).
 
 * The degree is chosen on held-out positions (every third position of each sequence), never on test data,
   by their held-out error net of the stage's own positioning noise.
@@ -38,8 +43,9 @@ stage's datasheet accuracy as ``stage_scale_sigma`` (relative, 1σ) to include i
   weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
 * Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
   defocus, METHOD.md §7), estimated from the scatter within positions; the coefficients' covariance (which
-  carries the stage's random errors through the generalised least squares); and, if declared, the stage's
-  scale uncertainty times the distance from the frame's reference.
+  carries the stage's random errors through the generalised least squares); and the scale uncertainty of
+  each axis (the plate's for X and Y, the declared stage's otherwise) times the distance from the frame's
+  reference.
 """
 
 from __future__ import annotations
@@ -322,7 +328,47 @@ def _noise_vs_depth(vn_depth, within, wts, dof) -> np.ndarray:
     return out
 
 
-def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int = 5, *, mode: str = "auto"):
+def plate_length_reference(cal: CalibrationSet, frame: dict, degree: int, coef, const) -> dict:
+    """The stage's X and Y scale against the static grid plate's pitch (module docstring).
+
+    The grid pair's dots inside the calibrated region are reconstructed in the commanded stage frame and
+    fitted by ``t + a·x + b·y`` (``x, y`` the plate's nominal coordinates; ``a, b`` [mm per mm], 3-vectors).
+    The plate's lattice is square and of known pitch: ``aᵀGa = bᵀGb = 1``, ``aᵀGb = 0``, where ``G`` is the
+    Euclidean metric of the commanded frame. Its X-Y block (``Gxx, Gxy, Gyy``) follows from these three
+    equations, taking the Z terms as Euclidean (their cross terms are second order): ``√Gxx`` and ``√Gyy`` are
+    the real lengths of a commanded millimetre along X and Y, and ``Gxy/√(Gxx·Gyy)`` the cosine between the
+    stage's X and Y axes. Returns ``factor`` (``√Gxx, √Gyy``), their 1σ ``sigma``, ``xy_cosine`` and the
+    number of ``dots`` used (factors 1 if there is no grid pair)."""
+    none = {"factor": [1.0, 1.0], "sigma": [0.0, 0.0], "xy_cosine": None, "dots": 0}
+    grid = cal.sequence("grid").dropna(subset=IMAGE_COLUMNS)
+    if len(grid) < 20:
+        return none
+    w = grid[IMAGE_COLUMNS].to_numpy(float)
+    inside = (np.abs(_variables(w, frame)) <= 1.0).all(axis=1)
+    if inside.sum() < 20:
+        return none
+    p = features(w[inside], degree, frame) @ coef + const
+    g = plate_xy(grid["row"].to_numpy()[inside], grid["col"].to_numpy()[inside], cal.plate("grid"))
+    design = np.column_stack([np.ones(len(g)), g])
+    sol, *_ = np.linalg.lstsq(design, p, rcond=None)
+    a, b = sol[1], sol[2]
+    lhs = np.array([[a[0] ** 2, 2 * a[0] * a[1], a[1] ** 2],
+                    [b[0] ** 2, 2 * b[0] * b[1], b[1] ** 2],
+                    [a[0] * b[0], a[0] * b[1] + a[1] * b[0], a[1] * b[1]]])
+    gxx, gxy, gyy = np.linalg.solve(lhs, [1 - a[2] ** 2, 1 - b[2] ** 2, -a[2] * b[2]])
+    resid = p - design @ sol
+    s2 = np.sum(resid[:, :2] ** 2) / max(2 * (len(g) - 3), 1)
+    sgg = np.sum((g - g.mean(axis=0)) ** 2) / 2
+    cosine = gxy / np.sqrt(gxx * gyy)
+    # 1σ: the fit's, and the neglected Z cross terms (the plate's Z extent in the stage frame times a cosine
+    # between the Z axis and X or Y, taken as large as the measured X-Y cosine)
+    sigma = np.hypot(np.sqrt(s2 / sgg), np.abs([a[2], b[2]]) * abs(cosine))
+    return {"factor": [float(np.sqrt(gxx)), float(np.sqrt(gyy))], "sigma": [float(v) for v in sigma],
+            "xy_cosine": float(cosine), "dots": int(inside.sum())}
+
+
+def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int = 5, *, mode: str = "auto",
+               length_reference: str = "stage"):
     """Fit the direct model; ``degree=None`` chooses it per coordinate on held-out positions. Returns a dict
     with ``coef``, ``const``, ``frame``, ``degrees``, ``cv`` (held-out RMS per degree), ``weights``,
     ``sigma_mm`` (scatter of one point), ``stage_error_mm`` (per position), ``noise_poly``, ``cov``,
@@ -372,6 +418,12 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
         const = np.mean(target[first] - phi[first] @ coef, axis=0)
     else:
         const = np.sum(wts[:, None] * (target - phi @ coef), 0) / wts.sum()
+    scale = {"factor": [1.0, 1.0], "sigma": [0.0, 0.0], "xy_cosine": None, "dots": 0}
+    if mode == "moves":  # measured (and reported) whenever there is a grid pair; applied on request
+        scale = plate_length_reference(cal, frame, max(degrees), coef, const)
+        if length_reference == "plate":
+            coef[:, :2] *= scale["factor"]
+            const[:2] *= scale["factor"]
     good = wts > 0.1
     within, cov, sigma = fit["within"], fit["cov"], fit["sigma_e_mm"]
     n_pt = np.bincount(fit["pinv"], wts)[fit["pinv"]]
@@ -394,7 +446,7 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
     return {"coef": coef, "const": const, "frame": frame, "degree": max(degrees), "degrees": degrees, "cv": cv,
             "weights": wts, "sigma_mm": sigma, "stage_error_mm": fit["sigma_u_mm"],
             "noise_poly": noise_poly, "cov": cov, "feature_mean": fit["feature_mean"], "suspects": suspects,
-            "mode": mode}
+            "mode": mode, "length_reference": scale}
 
 
 @register
@@ -407,10 +459,10 @@ class DirectModel(Model):
     accuracy_rank = 5
     units = {"coef": "mm per normalised monomial", "const": "mm", "centroid_noise_px": "px", "sigma_mm": "mm",
              "frame": "px (centre, scale); unit vector (direction)", "noise_poly": "mm^2 per power of Dn",
-             "cov": "mm^2 per normalised monomial^2", "feature_mean": "normalised monomial", "stage_scale_sigma": "relative", "reference_mm": "mm"}
+             "cov": "mm^2 per normalised monomial^2", "feature_mean": "normalised monomial", "scale_sigma": "relative, per axis", "reference_mm": "mm"}
 
     def __init__(self, degree, coef, const, cov=None, sigma_mm=(0.0, 0.0, 0.0), centroid_noise_px=0.02, *,
-                 frame=None, noise_poly=None, stage_scale_sigma=0.0, reference_mm=None, feature_mean=None, **kw):
+                 frame=None, noise_poly=None, scale_sigma=(0.0, 0.0, 0.0), reference_mm=None, feature_mean=None, **kw):
         super().__init__(**kw)
         self.degree, self.coef, self.const = int(degree), np.asarray(coef, float), np.asarray(const, float)
         self.frame = dict(frame or LEGACY_FRAME)
@@ -423,27 +475,45 @@ class DirectModel(Model):
         if noise_poly is None:
             noise_poly = np.column_stack([self.sigma_mm ** 2, np.zeros(3), np.zeros(3)])
         self.noise_poly = np.asarray(noise_poly, float)
-        self.stage_scale_sigma = float(stage_scale_sigma)
+        self.scale_sigma = np.broadcast_to(np.asarray(scale_sigma, float), (3,)).copy()
         self.feature_mean = np.zeros(len(self.coef)) if feature_mean is None else np.asarray(feature_mean, float)
         self.reference_mm = self.const.copy() if reference_mm is None else np.asarray(reference_mm, float)
 
     @classmethod
     def fit(cls, cal, *, degree: int | None = None, centroid_noise_px: float = 0.02, mode: str = "auto",
-            stage_scale_sigma: float = 0.0, **_):
-        """Fit on a calibration set. ``mode``: ``"auto"``, ``"moves"`` or ``"zstack"`` (module docstring);
-        ``stage_scale_sigma``: the stage's scale uncertainty (relative, 1σ, from its datasheet), added to the
-        per-point uncertainty."""
-        f = fit_direct(cal, degree, mode=mode)
+            stage_scale_sigma: float = 0.0, length_reference: str = "stage", **_):
+        """Fit on a calibration set. ``mode``: ``"auto"``, ``"moves"`` or ``"zstack"``; ``length_reference``:
+        ``"plate"`` or ``"stage"`` (module docstring); ``stage_scale_sigma``: the stage's scale uncertainty
+        (relative, 1σ, from its datasheet), added to the per-point uncertainty of the axes whose scale is the
+        stage's."""
+        if length_reference not in ("plate", "stage"):
+            raise SlmlabError(f"unknown length reference {length_reference!r}; use 'plate' or 'stage'")
+        f = fit_direct(cal, degree, mode=mode, length_reference=length_reference)
+        ref = f["length_reference"]
+        if f["mode"] == "zstack":  # X, Y from the plate's lattice
+            scale_sigma = [0.0, 0.0, stage_scale_sigma]
+        elif length_reference == "plate" and ref["dots"]:
+            scale_sigma = [*ref["sigma"], stage_scale_sigma]
+        else:
+            scale_sigma = [stage_scale_sigma] * 3
         return cls(f["degree"], f["coef"], f["const"], f["cov"], f["sigma_mm"], centroid_noise_px,
-                   frame=f["frame"], noise_poly=f["noise_poly"], stage_scale_sigma=stage_scale_sigma,
+                   frame=f["frame"], noise_poly=f["noise_poly"], scale_sigma=scale_sigma,
                    reference_mm=f["const"], feature_mean=f["feature_mean"],
                    options={"degree_chosen_by": "held-out positions" if degree is None else "user",
-                            "mode": f["mode"], "stage_scale_sigma": float(stage_scale_sigma)},
+                            "mode": f["mode"], "length_reference": length_reference,
+                            "stage_scale_sigma": float(stage_scale_sigma)},
                    calibration={"held_out_rms_mm_by_degree": {str(k): v for k, v in f["cv"].items()},
                                 "degree_per_coordinate": f["degrees"],
                                 "frame": ("stage axes" if f["mode"] == "moves" else
                                           "plate axes (x = ((cols+1)/2 - col) pitch, y = ((rows+1)/2 - row) "
                                           "pitch) and the Z stage's direction"),
+                                "xy_scale_from": ("the plate's lattice" if f["mode"] == "zstack" else
+                                                  f"grid plate ({ref['dots']} dots)"
+                                                  if length_reference == "plate" and ref["dots"] else
+                                                  "the stage's commanded moves"),
+                                "stage_xy_scale_error_vs_plate": [float(v - 1) for v in ref["factor"]],
+                                "stage_xy_scale_error_sigma": ref["sigma"],
+                                "stage_xy_axes_cosine": ref["xy_cosine"],
                                 "residual_sigma_mm": [float(v) for v in f["sigma_mm"]],
                                 "stage_error_per_position_mm": [float(v) for v in f["stage_error_mm"]],
                                 "down_weighted_rows": f["suspects"].to_dict(orient="records")})
@@ -473,21 +543,21 @@ class DirectModel(Model):
         * the scatter of one point, as a quadratic in the normalised depth ``Dn`` (the centroid noise grows
           with defocus), measured within positions on the calibration set (floored at a quarter of its mean);
         * the calibration's uncertainty (:meth:`calibration_sigma`);
-        * if declared, the stage's scale uncertainty times the distance from the frame's reference.
+        * each axis's scale uncertainty times the distance from the frame's reference.
         """
         w = np.atleast_2d(np.asarray(w, float))
         dn = _variables(w, self.frame)[:, 2][:, None]
         noise = self.noise_poly[:, 0][None, :] + dn * self.noise_poly[:, 1] + dn ** 2 * self.noise_poly[:, 2]
         var = np.maximum(noise, 0.25 * self.sigma_mm[None, :] ** 2) + self.calibration_sigma(w) ** 2
-        if self.stage_scale_sigma:
-            var += (self.stage_scale_sigma * (self.reconstruct(w) - self.reference_mm)) ** 2
+        if self.scale_sigma.any():
+            var += (self.scale_sigma * (self.reconstruct(w) - self.reference_mm)) ** 2
         return np.sqrt(var)
 
     def parameters_dict(self) -> dict:
         return {"degree": self.degree, "coef": self.coef.tolist(), "const": self.const.tolist(),
                 "frame": self.frame, "cov": None if self.cov is None else self.cov.tolist(),
                 "sigma_mm": self.sigma_mm.tolist(), "noise_poly": self.noise_poly.tolist(),
-                "stage_scale_sigma": self.stage_scale_sigma,
+                "scale_sigma": self.scale_sigma.tolist(),
                 "feature_mean": self.feature_mean.tolist(), "reference_mm": self.reference_mm.tolist(),
                 "centroid_noise_px": self.centroid_noise_px}
 
@@ -495,5 +565,5 @@ class DirectModel(Model):
     def from_parameters(cls, p, calibration, options):
         return cls(p["degree"], p["coef"], p["const"], p.get("cov"), p.get("sigma_mm", 0.0),
                    p.get("centroid_noise_px", 0.02), frame=p.get("frame"), noise_poly=p.get("noise_poly"),
-                   stage_scale_sigma=p.get("stage_scale_sigma", 0.0), reference_mm=p.get("reference_mm"),
+                   scale_sigma=p.get("scale_sigma", 0.0), reference_mm=p.get("reference_mm"),
                    feature_mean=p.get("feature_mean"), calibration=calibration, options=options)

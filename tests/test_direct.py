@@ -186,3 +186,15 @@ def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
     for c in "XYZ":
         ratio = np.sqrt(np.mean(d[f"E{c}_mm"] ** 2)) / np.mean(d[f"s{c}_mm"])
         assert 0.5 < ratio < 2.0, (c, ratio)
+
+
+def test_the_grid_plate_measures_the_stages_scale_error():
+    m = study.perfect_stage(slmlab.preset("paper"), keep=("scale_error",))
+    cal = slmlab.simulate_set(m, slmlab.paper_test(1), seed=1)
+    val = slmlab.simulate_set(m, volume_session(20, seed=5), seed=7)
+    default = slmlab.calibrate(cal)
+    measured = default.calibration["stage_xy_scale_error_vs_plate"]
+    assert abs(measured[0] - m.stage.scale_error[0]) < 2e-5, measured
+    plate = slmlab.calibrate(cal, length_reference="plate")
+    t = study.volumetric_comparison({"stage": default, "plate": plate}, val).set_index("model")
+    assert t.loc["plate", "X_vs_floor"] < 1.2 < t.loc["stage", "X_vs_floor"], t
