@@ -52,6 +52,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("cal_dir", type=Path)
     c.add_argument("--model", default=None, help="model name (default: the most accurate)")
     c.add_argument("--out", type=Path, required=True, help="model file to write (JSON)")
+    c.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a model option, repeatable (e.g. length_reference=plate, stage_scale_sigma=1e-4, degree=3)")
 
     r = sub.add_parser("reconstruct", help="world coordinates of image points with a model file")
     r.add_argument("model", type=Path)
@@ -131,8 +133,9 @@ def _calibrate(a) -> int:
 
     if not a.out.parent.exists():
         raise SlmlabError(f"the folder {a.out.parent} does not exist; create it or choose another --out", a.out)
+    options = _model_options(a.model, a.option)
     cal = read_set(a.cal_dir)
-    model = calibrate(cal, a.model)
+    model = calibrate(cal, a.model, **options)
     model.save(a.out)
     for note in cal.notes:
         print(f"note: {note}", file=sys.stderr)
@@ -142,8 +145,36 @@ def _calibrate(a) -> int:
                           f"({1e3 * q['residual_mm']:.0f} um)" for q in suspects[:5])
         print(f"note: {len(suspects)} row(s) look misindexed or mismatched (kept; listed in the model file under "
               f"calibration.suspect_rows): {shown}{' ...' if len(suspects) > 5 else ''}", file=sys.stderr)
+    dropped = model.calibration.get("down_weighted_rows") or []
+    if dropped:
+        print(f"note: {len(dropped)} row(s) rejected as outliers (listed in the model file under "
+              f"calibration.down_weighted_rows)", file=sys.stderr)
     print(f"wrote {a.out} (model {model.name})")
     return 0
+
+
+def _model_options(name: str | None, pairs: list[str]) -> dict:
+    """``NAME=VALUE`` pairs as keyword options of the model's ``fit`` (values read as JSON where they parse,
+    else as text); an option the model does not take is an error."""
+    import inspect
+    import json
+
+    from .models import default_model_name, get_model_class
+
+    cls = get_model_class(name or default_model_name())
+    known = [p.name for p in inspect.signature(cls.fit).parameters.values()
+             if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in known:
+            raise SlmlabError(f"--option {pair!r}: model {cls.name!r} takes "
+                              f"{', '.join(k + '=...' for k in known) or 'no options'}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
 
 
 def _reconstruct(a) -> int:

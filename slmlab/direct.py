@@ -488,6 +488,12 @@ class DirectModel(Model):
         stage's."""
         if length_reference not in ("plate", "stage"):
             raise SlmlabError(f"unknown length reference {length_reference!r}; use 'plate' or 'stage'")
+        if degree is not None and not all(isinstance(d, (int, np.integer)) and 1 <= d <= 5
+                                          for d in np.atleast_1d(degree).tolist()):
+            raise SlmlabError(f"degree must be a whole number 1 to 5, or three of them (X, Y, Z), not {degree!r}")
+        if not (isinstance(stage_scale_sigma, (int, float)) and 0 <= stage_scale_sigma < 0.1):
+            raise SlmlabError(f"stage_scale_sigma is a relative 1-sigma scale uncertainty (e.g. 1e-4), "
+                              f"not {stage_scale_sigma!r}")
         f = fit_direct(cal, degree, mode=mode, length_reference=length_reference)
         ref = f["length_reference"]
         if f["mode"] == "zstack":  # X, Y from the plate's lattice

@@ -198,3 +198,19 @@ def test_the_grid_plate_measures_the_stages_scale_error():
     plate = slmlab.calibrate(cal, length_reference="plate")
     t = study.volumetric_comparison({"stage": default, "plate": plate}, val).set_index("model")
     assert t.loc["plate", "X_vs_floor"] < 1.2 < t.loc["stage", "X_vs_floor"], t
+
+
+def test_calibrate_takes_model_options_on_the_command_line(tmp_path, volume):
+    cal, _ = volume
+    d = slmlab.write_set(tmp_path / "cal", cal)
+    out = tmp_path / "m.json"
+    ok = subprocess.run([sys.executable, "-m", "slmlab", "calibrate", d, "--out", out, "--option", "degree=[3,3,2]",
+                         "--option", "length_reference=plate"], timeout=300)
+    assert ok.returncode == 0
+    model = slmlab.load_model(out)
+    assert model.options["length_reference"] == "plate" and model.calibration["degree_per_coordinate"] == [3, 3, 2]
+    for bad in ("degre=3", "degree=9", "length_reference=ruler"):
+        r = subprocess.run([sys.executable, "-m", "slmlab", "calibrate", d, "--out", tmp_path / "x.json",
+                            "--option", bad], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, (bad, r.stderr)
+        assert not (tmp_path / "x.json").exists()
