@@ -4,9 +4,10 @@ The paper's chain is linear after its corrections, so what a CMO microscope does
 disparity ``∝ z/(L − z)`` and a magnification that changes with depth; the disparity curvature the paper's
 procedure misses; residual camera rotation) is left in its residuals. This model maps
 ``(v1, v2, D) = ((w1_l + w1_r)/2, (w2_l + w2_r)/2, u·(w_r − w_l))`` to stage coordinates with a polynomial of
-total degree ``k`` (one degree per coordinate). ``u`` is the direction in which the disparity varies most in
-the calibration set: ``(1, 0)`` for a CMO microscope (§4: after alignment the disparity is along ``w1``), mostly
-``(0, 1)`` for a rig whose second camera looks down obliquely. The variables are normalised to ``[−1, 1]`` over
+total degree ``k`` (one degree per coordinate). ``u`` is the direction in which each dot's disparity changes
+from position to position (in the Z sequence, if there is one), that is, with depth: ``(1, 0)`` for a CMO
+microscope (§4: after alignment the disparity is along ``w1``), ``(0, 1)`` for the PIV Challenge rig, whose
+second camera looks down obliquely. The variables are normalised to ``[−1, 1]`` over
 the calibration set.
 
 Two ways to calibrate, chosen from the set (``mode="auto"``):
@@ -23,9 +24,10 @@ Two ways to calibrate, chosen from the set (``mode="auto"``):
 
 In both, a stage's own errors at each position (positioning noise, lead and straightness errors: the same
 for every dot of that position) are a **random effect per position**. Their variance and the centroid noise's
-are estimated from the residuals (within and between positions), and the fit is generalised least squares
-(quasi-demeaning by position): the polynomial's shape comes from the many dots within each position, and only
-its large-scale part from the (noisy) stage moves.
+are estimated from the residuals (within and between positions), and X and Y are fitted by generalised least
+squares (quasi-demeaning by position): the polynomial's shape comes from the many dots within each position,
+and only its large-scale part from the (noisy) stage moves. Z keeps ordinary least squares (see
+:func:`_theta`). Rows are weighted by how one point's scatter grows with defocus.
 
 **Length reference.** A stage's scale error is invisible in its own commanded moves. Whenever the set has
 a static ``grid`` pair, its dots are reconstructed and fitted to the plate's nominal lattice, and the metric
@@ -38,14 +40,15 @@ its stage's scale errors). Z has no such reference (a plate is flat); for axes w
 user can declare its uncertainty from the stage's datasheet as ``stage_scale_sigma`` (relative, 1σ).
 
 * The degree is chosen on held-out positions (every third position of each sequence), never on test data,
-  by their held-out error net of the stage's own positioning noise.
+  by their held-out error net of the stage's own positioning noise, with the one-standard-error rule (the
+  lowest degree within one standard error of the best), and below the number of positions per sequence.
 * Outliers (mismatched or misindexed dots) are down-weighted by iteratively reweighted least squares (Huber
   weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
 * Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
   defocus, METHOD.md §7), estimated from the scatter within positions; the coefficients' covariance (which
   carries the stage's random errors through the generalised least squares); and the scale uncertainty of
-  each axis (the plate's for X and Y, the declared stage's otherwise) times the distance from the frame's
-  reference.
+  each axis (the plate's for X and Y with ``length_reference="plate"``, the declared ``stage_scale_sigma``
+  otherwise) times the distance from the frame's reference.
 """
 
 from __future__ import annotations
