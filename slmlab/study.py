@@ -18,7 +18,7 @@ from .vision import fit_paper
 __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",
            "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
            "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out", "workspace_grid",
-           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions"]
+           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions", "commanded_frame_limit"]
 
 TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
                 "KZX", "BZX_mm", "KZY", "BZY_mm"]
@@ -333,3 +333,29 @@ def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 
             rows.append({"every": k, "positions": n, "model": name, **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"},
                          **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"}})
     return pd.DataFrame(rows)
+
+
+def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int = 20, seed: int = 0) -> dict:
+    """What no calibration on a session's commanded stage moves can beat, in the stage's true frame.
+
+    A perfect model can at best learn the commanded frame: here, the best linear map from the stage's actual
+    positions to the commanded ones over the session's positions (each repeat draws the stage's errors
+    afresh). Applied to the volume run's true displacements, its RMS error [µm] per coordinate adds to the
+    noise floor's; returns ``frame_um`` and ``floor_um`` (per coordinate) and ``attainable_vs_floor``
+    ``= √(floor² + frame²) / floor``. It ignores the stage's non-linear errors a model would also learn,
+    so the true limit is higher."""
+    from .vision import displacements
+
+    positions = session.stage_positions()
+    cmd = np.concatenate([positions[k] for k in positions if k in ("X", "Y", "Z", "V")])
+    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    dt, _, _ = displacements(v, val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy())
+    floor = volumetric_comparison({}, val).iloc[0][["X_um", "Y_um", "Z_um"]].to_numpy(float)
+    rng = np.random.default_rng(seed)
+    errors = []
+    for _ in range(repeats):
+        actual = microscope.stage.actual(cmd, rng)
+        lin, *_ = np.linalg.lstsq(np.column_stack([actual, np.ones(len(actual))]), cmd, rcond=None)
+        errors.append(np.mean((dt @ lin[:3] - dt) ** 2, axis=0))
+    frame = 1e3 * np.sqrt(np.mean(errors, axis=0))
+    return {"frame_um": frame, "floor_um": floor, "attainable_vs_floor": np.sqrt(floor ** 2 + frame ** 2) / floor}

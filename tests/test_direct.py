@@ -214,3 +214,12 @@ def test_calibrate_takes_model_options_on_the_command_line(tmp_path, volume):
                             "--option", bad], capture_output=True, text=True, timeout=300)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, (bad, r.stderr)
         assert not (tmp_path / "x.json").exists()
+
+
+def test_the_commanded_frame_limit_is_the_floor_on_a_perfect_stage_and_above_it_otherwise(volume):
+    _, val = volume
+    perfect = study.commanded_frame_limit(perfect_stage(), slmlab.paper_test(1), val, repeats=3)
+    assert np.allclose(perfect["attainable_vs_floor"], 1.0, atol=1e-6)
+    noisy = study.perfect_stage(slmlab.preset("paper"), keep=("positioning_noise_um",))
+    limit = study.commanded_frame_limit(noisy, slmlab.paper_test(1), val, repeats=3)
+    assert (limit["attainable_vs_floor"][:2] > 1.1).all(), limit
