@@ -53,6 +53,21 @@ def jupyterlab(tmp_path):
             proc.kill()
 
 
+def _dismiss_dialogs(page) -> list[str]:
+    """Accept every JupyterLab dialog on the page (kernel selection, a kernel that restarted, ...); return their
+    texts. Escape does not close all of them, and an open one swallows every click."""
+    texts = []
+    for _ in range(5):
+        dialog = page.locator(".jp-Dialog")
+        if dialog.count() == 0:
+            break
+        texts.append(" ".join(dialog.first.inner_text().split())[:200])
+        accept = dialog.first.locator(".jp-Dialog-button.jp-mod-accept")
+        (accept.first if accept.count() else dialog.first.locator("button").first).click(timeout=5_000)
+        page.wait_for_timeout(500)
+    return texts
+
+
 @pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (Debian package 'chromium'); .ci/run installs it")
 def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_path):
@@ -69,9 +84,11 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
             page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=90_000)
             page.get_by_text("Idle", exact=False).first.wait_for(timeout=90_000, state="attached")  # kernel up
             images = page.locator(".jp-OutputArea-output .widget-image")
+            seen = []
             for attempt in range(4):  # a starting kernel or a dialog may swallow the first request
                 try:
-                    page.keyboard.press("Escape")  # close any dialog or open menu
+                    seen += _dismiss_dialogs(page)
+                    page.keyboard.press("Escape")  # close any open menu
                     page.get_by_role("menuitem", name="Run", exact=True).click(timeout=20_000)
                     page.get_by_text("Run All Cells", exact=True).click(timeout=20_000)
                     page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 1",
@@ -80,7 +97,7 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
                 except sync_api.TimeoutError:
                     if attempt == 3:
                         page.screenshot(path=str(tmp_path / "failed.png"))
-                        raise
+                        raise AssertionError(f"JupyterLab did not run the notebook; dialogs seen: {seen}") from None
             page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 3",
                                    timeout=180_000)
             handle = page.locator(".jp-OutputArea-output .widget-slider .noUi-handle").nth(2)  # distortion_scale
