@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab import realdata, study
+from slmlab import study, thirdparty
 from slmlab.direct import LEGACY_FRAME, DirectModel, plate_xy
 from slmlab.paths import SHARED_DIR
 from slmlab.simulate import noise_floor, volume_session, zstack_frame, zstack_plate, zstack_session
@@ -157,12 +157,12 @@ def test_the_disparity_direction_is_found_from_the_data(volume):
 
 
 # ----------------------------------------------------------------------------- the real Z stack
-PIV = SHARED_DIR / "realdata" / realdata.PIV_CHALLENGE_DIR
+PIV = SHARED_DIR / "realdata" / thirdparty.PIV_CHALLENGE_DIR
 
 
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_path):
-    cal = realdata.pivchallenge_set(PIV)
+    cal = thirdparty.pivchallenge_set(PIV)
     csv = pd.read_csv(PIV / "stereo_common_points.csv")
     assert len(cal.points) == len(csv) == 112
     assert sorted(cal.points["position"].unique()) == list(range(1, 8))
@@ -176,7 +176,7 @@ def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_pat
 
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
-    cal = realdata.pivchallenge_set(PIV)
+    cal = thirdparty.pivchallenge_set(PIV)
     model = slmlab.calibrate(cal)
     assert model.options["mode"] == "zstack" and abs(model.frame["direction"][1]) > 0.99  # oblique camera: rows
     lopo = study.leave_one_plane_out(cal, {"default": {}, "linear": {"degree": 1}})
