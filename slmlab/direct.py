@@ -284,9 +284,9 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             score = a * (b - a @ coef[idx, k])[:, None]
             sums = np.stack([np.bincount(cinv, score[:, j], n_c) for j in range(score.shape[1])], axis=1)
             cov[k][np.ix_(idx, idx)] = bread @ (sums.T @ sums) @ bread * n_c / max(n_c - 1, 1)
-    return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv, "offsets": offsets, "within": within,
-            "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2), "sigma_u_mm": np.sqrt(s_u2), "cov": cov,
-            "position_residuals": rm}
+    return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv,
+            "offsets": offsets, "within": within, "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2),
+            "sigma_u_mm": np.sqrt(s_u2), "cov": cov}
 
 
 def _held_out_error(phi, target, groups, positions, held, variance, precision) -> np.ndarray:
