@@ -311,10 +311,16 @@ def _held_out_error(phi, target, groups, positions, held, variance, precision) -
     return np.sqrt(within + np.maximum(between, 0.0))
 
 
+def _noise_variance(noise_poly: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """One point's variance ``(n, 3)`` [mm²] at normalised depths ``depth`` (n,): ``a + b·Dn + c·Dn²`` per
+    coordinate (:func:`_noise_vs_depth`)."""
+    return (np.asarray(noise_poly) @ np.stack([np.ones_like(depth), depth, depth ** 2])).T
+
+
 def _precision(noise_poly: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """Relative weights ``(n, 3)`` (mean 1, within a factor 10 either way) of rows at normalised depth
     ``depth``: the inverse of their variance under ``noise_poly``."""
-    var = noise_poly[:, 0][None, :] + depth[:, None] * noise_poly[:, 1] + depth[:, None] ** 2 * noise_poly[:, 2]
+    var = _noise_variance(noise_poly, depth)
     var = np.clip(var, 0.1 * np.mean(np.abs(var), 0), 10 * np.mean(np.abs(var), 0))
     p = 1.0 / var
     return p / p.mean(axis=0)
@@ -555,8 +561,7 @@ class DirectModel(Model):
         * each axis's scale uncertainty times the distance from the frame's reference.
         """
         w = np.atleast_2d(np.asarray(w, float))
-        dn = _variables(w, self.frame)[:, 2][:, None]
-        noise = self.noise_poly[:, 0][None, :] + dn * self.noise_poly[:, 1] + dn ** 2 * self.noise_poly[:, 2]
+        noise = _noise_variance(self.noise_poly, _variables(w, self.frame)[:, 2])
         var = np.maximum(noise, 0.25 * self.sigma_mm[None, :] ** 2) + self.calibration_sigma(w) ** 2
         if self.scale_sigma.any():
             var += (self.scale_sigma * (self.reconstruct(w) - self.reference_mm)) ** 2

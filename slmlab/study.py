@@ -114,6 +114,18 @@ def z_calibration_samples(cal, params) -> pd.DataFrame:
     return pd.DataFrame({"position": df["position"].to_numpy()[keep], "dD_px": dd[:, 0], "dZ_A_mm": ds[:, 2]})
 
 
+def _volume_rows(val) -> pd.DataFrame:
+    """The volume run's ``V`` rows seen in both views."""
+    return val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+
+
+def _volume_run(microscope: Microscope, n_volume: int, seed: int):
+    """The volume run of the studies below (``n_volume`` random positions), seeded from ``seed``."""
+    from .simulate import simulate_set, volume_session
+
+    return simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+
+
 def volumetric_comparison(models: dict, val, frame: np.ndarray | None = None) -> "pd.DataFrame":
     """RMS displacement error [µm] per coordinate on a volumetric run ``V`` (relative to its position 1,
     against the truth) for each model ``{name: model}`` and for the simulator's own true-model
@@ -122,15 +134,13 @@ def volumetric_comparison(models: dict, val, frame: np.ndarray | None = None) ->
     from .simulate import noise_floor
     from .vision import displacements
 
-    v = val.points[val.points["sequence"] == "V"]
-    ok = v[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1).to_numpy()
-    v = v[ok]
+    v = _volume_rows(val)
     m = np.eye(3) if frame is None else np.asarray(frame, float)
     truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
     dt, _, _ = displacements(v, truth)
     w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
     rows = []
-    floor = noise_floor(val)[ok] @ m.T
+    floor = noise_floor(val)[val.points.index.get_indexer(v.index)] @ m.T
     for name, p in [("noise floor (true model)", floor)] + [(n, m.reconstruct(w)) for n, m in models.items()]:
         dp, _, _ = displacements(v, p)
         e = 1e3 * np.sqrt(np.mean((dp - dt) ** 2, axis=0))
@@ -148,7 +158,7 @@ def uncertainty_coverage(model, val, share: float = 95.0, frame: np.ndarray | No
     :func:`volumetric_comparison`)."""
     from scipy.stats import norm
 
-    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    v = _volume_rows(val)
     w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
     m = np.eye(3) if frame is None else np.asarray(frame, float)
     e = model.reconstruct(w) - val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
@@ -163,7 +173,7 @@ def volumetric_errors(models: dict, val, frames: dict | None = None) -> dict:
     (``frames``: per model name, a matrix as in :func:`volumetric_comparison`)."""
     from .vision import displacements
 
-    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    v = _volume_rows(val)
     truth0 = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     out = {}
     for name, m in models.items():
@@ -196,14 +206,14 @@ def stage_error_budget(microscope: Microscope, n_volume: int, seed: int = 1) -> 
     volume run, with the stage perfect, with one error at a time, and with all of them. Per row: the RMS
     displacement error over the noise floor per coordinate and the 95 % intervals' coverage [%]."""
     from .models import calibrate
-    from .simulate import simulate_set, volume_session, paper_test
+    from .simulate import simulate_set, paper_test
 
     cases = [("perfect stage", ())] + [(f"only {k}", (k,)) for k in STAGE_ERRORS] + [("all (paper preset)", STAGE_ERRORS)]
     rows = []
     for label, keep in cases:
         m = perfect_stage(microscope, keep)
         cal = simulate_set(m, paper_test(1), seed=seed)
-        val = simulate_set(m, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+        val = _volume_run(m, n_volume, seed)
         model = calibrate(cal)
         t = volumetric_comparison({"direct": model}, val).set_index("model").loc["direct"]
         cov = uncertainty_coverage(model, val)
@@ -219,13 +229,13 @@ def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 
     Returns ``(table, zstack_model, val, frame)``: per model, RMS displacement error [µm] and over the floor,
     and the 95 % intervals' coverage [%]."""
     from .models import calibrate
-    from .simulate import simulate_set, volume_session, paper_test, zstack_frame, zstack_plate, zstack_session
+    from .simulate import simulate_set, paper_test, zstack_frame, zstack_plate, zstack_session
 
     mz = microscope.replace(moving_plate=zstack_plate())
     zcal = simulate_set(mz, zstack_session(n_planes), seed=seed)
     zmodel = calibrate(zcal)
     moves = calibrate(simulate_set(microscope, paper_test(1), seed=seed))
-    val = simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+    val = _volume_run(microscope, n_volume, seed)
     frame = zstack_frame(mz)
     rows = []
     for label, model, fr in (("Z stack alone", zmodel, frame), ("X, Y, Z sequences (Test 1)", moves, None)):
@@ -320,10 +330,10 @@ def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 
     each model calibrated on it and validated on one volume run. Per row: positions, model, RMS displacement
     error [µm] and over the floor per coordinate."""
     from .models import calibrate
-    from .simulate import simulate_set, volume_session, paper_test
+    from .simulate import simulate_set, paper_test
 
     full = simulate_set(microscope, paper_test(1), seed=seed)
-    val = simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
+    val = _volume_run(microscope, n_volume, seed)
     rows = []
     for k in everies:
         cal = subsample_positions(full, k)
@@ -348,7 +358,7 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
 
     positions = session.stage_positions()
     cmd = np.concatenate([positions[k] for k in positions if k in ("X", "Y", "Z", "V")])
-    v = val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    v = _volume_rows(val)
     dt, _, _ = displacements(v, val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy())
     floor = volumetric_comparison({}, val).iloc[0][["X_um", "Y_um", "Z_um"]].to_numpy(float)
     rng = np.random.default_rng(seed)
