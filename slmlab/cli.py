@@ -44,7 +44,8 @@ def _parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("extract", help="find and index the dots in images/ and write points.csv")
     e.add_argument("cal_dir", type=Path)
-    e.add_argument("--method", default="moments", choices=["moments", "ellipse"], help="sub-pixel centre estimator")
+    e.add_argument("--method", default="auto", choices=["auto", "moments", "ellipse"],
+                   help="sub-pixel centre estimator of dot plates (auto: chosen per plate and view, see the notes)")
 
     sub.add_parser("models", help="list the vision models")
 

@@ -1,26 +1,38 @@
-"""Dot extraction: find the dots of a calibration plate in an image, refine their centres to sub-pixel
-accuracy and index them ``[row, col]`` on the plate (DATA_FORMAT.md ``extract``; the paper's §3 input).
+"""Dot extraction from one image: find the dots of a calibration plate, refine their centres to sub-pixel
+accuracy and index them on the plate's lattice (DATA_FORMAT.md ``extract``; the paper's §3 input).
 
-Pipeline for one image (OpenCV throughout):
+Pipeline for one image (OpenCV throughout), for images as a camera writes them (8 or 16 bit, any format
+OpenCV reads, dark dots on a bright plate or bright dots on black):
 
-1. **Background** (illumination and vignetting): a max filter, for dark dots, on an 8× reduced image,
-   smoothed and enlarged back. Pixels darker than ``threshold`` × background are dot pixels.
-2. **Blobs**: external contours of the dot mask (``cv2.findContours``); blobs touching the image border
-   (partly visible dots), too small or large against the median, or not round enough are rejected.
-3. **Sub-pixel centres**, two estimators, both flat-fielded by a background plane fitted per dot on a ring
+1. **Polarity**: from the plate's ``"dots"`` key, or decided from the image (:func:`dot_polarity`: the dots
+   are the minority class of an Otsu split).
+2. **Background and dot level** (illumination, vignetting): a min (max) filter on an 8× reduced image gives
+   the background under the dots, a max (min) filter over a larger window the level of the dots (zero for
+   dark dots). Pixels beyond ``threshold`` of the way from the background to the dot level are dot pixels.
+3. **Blobs**: external contours of the dot mask (``cv2.findContours``). Blobs touching the image border
+   (partly visible dots), too small or large against the median, or not round enough are rejected; large
+   enough polygons are kept as **markers** (triangles, squares, a frame around a dot), dots with a hole as
+   donut markers.
+4. **Sub-pixel centres**, two estimators, both flat-fielded by a background plane fitted per dot on a ring
    around it (so vignetting does not pull the centre):
 
-   * ``moments``: intensity-weighted centroid of ``1 − I/B`` inside an anti-aliased circular window,
-     iterated so the window is centred on the estimate;
+   * ``moments``: intensity-weighted centroid of the dot's contrast (``1 − I/B`` for dark dots, ``I − B``
+     for bright ones) inside an anti-aliased circular window, iterated so the window is centred on the
+     estimate;
    * ``ellipse``: half-contrast crossings along 48 rays, fitted by an ellipse (algebraic least squares).
+     It uses only the dot's edge, so a textured or scratched dot (real plates) does not pull it.
 
-   Measured on rendered sets (``python -m slmlab bench``, notebook 02) ``moments`` is the more accurate, and
-   the default.
-4. **Indexing**: the lattice directions from nearest-neighbour vectors (any rotation), a breadth-first walk
+   Measured on rendered sets (``python -m slmlab bench``, notebook 02) ``moments`` is the more accurate on
+   uniform dots, and the default.
+5. **Indexing**: the lattice directions from nearest-neighbour vectors (any rotation), a breadth-first walk
    over the lattice that follows its local spacing (distortion, perspective), then a quadratic lattice model
-   that recovers dots the walk missed and drops blobs that are off the lattice (spurious). Absolute indices:
-   when fewer rows (columns) are seen than the plate has, the side where the lattice runs out of the image is
-   the side the missing ones are on; when that cannot be told, the image is reported as not indexed.
+   that recovers dots the walk missed and drops blobs that are off the lattice (spurious). A **two-level**
+   plate (rows alternating between two depths, offset by half a pitch) is one lattice rotated by 45° in the
+   image; its indices are turned into half-pitch plate units, where the two levels are the two parities.
+6. **Absolute indices** (:func:`anchor_image`): from the plate's size and where the lattice runs out of the
+   image (whole plate in view), or from markers (a donut L as on DICe targets; a square and a triangle as on
+   stereo-PIV plates; a frame around the origin dot). Images that cannot be anchored alone are anchored from
+   a neighbouring image of the same view by :mod:`slmlab.imageset`.
 """
 
 from __future__ import annotations
@@ -36,74 +48,129 @@ from scipy.spatial import cKDTree
 
 from .errors import SlmlabError
 
-__all__ = ["Blobs", "ImageDots", "read_image", "estimate_background", "find_blobs", "refine_moments",
-           "refine_ellipse", "index_lattice", "extract_image", "extract_set", "extraction_errors",
-           "extraction_summary", "extract_folder", "error_by_defocus", "extract_stereo_pairs", "measured_centres",
-           "IMAGE_NAME"]
+__all__ = ["Blobs", "ImageDots", "Marker", "read_image", "dot_polarity", "estimate_background", "find_blobs",
+           "refine_moments", "refine_ellipse", "index_lattice", "plate_lattice", "anchor_image", "extract_image",
+           "extract_set", "extraction_errors", "extraction_summary", "extract_folder", "error_by_defocus",
+           "extract_stereo_pairs", "measured_centres", "lattice_residual_px", "choose_method", "IMAGE_NAME",
+           "METHODS"]
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
 METHODS = ("moments", "ellipse")
+#: ``method="auto"`` takes the ellipse estimator only where its centres lie this much more smoothly on the
+#: lattice than the moments' (real, textured dots); otherwise moments, the more accurate on uniform dots
+AUTO_ELLIPSE_RATIO = 0.7
 
 
 # ------------------------------------------------------------------------------------------ reading
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image as 8-bit grey levels; unreadable or truncated files are a :class:`SlmlabError`."""
+    """Read an image as a 2-D array of grey levels in its own bit depth (``uint8``, ``uint16`` or ``float32``:
+    any format OpenCV reads, PNG and TIFF included); colour images are converted to grey. Missing,
+    unreadable or truncated files are a :class:`SlmlabError` that names the file."""
     path = Path(path)
     if not path.exists():
-        raise SlmlabError("image not found", path)
+        raise SlmlabError("image not found; check the path (images are named relative to the set's folder)", path)
     if path.is_dir():
         raise SlmlabError("is a folder, not an image", path)
     data = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise SlmlabError("cannot be read as an image (unreadable or truncated); re-render or re-export it", path)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH) if data.size else None
+    if img is None or img.size == 0:
+        raise SlmlabError("cannot be read as an image (unreadable, truncated or not an image); re-export it as "
+                          "PNG or TIFF", path)
     if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    if img.dtype != np.uint8:
-        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        else:
+            code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+            img = cv2.cvtColor(img, code)
+    if img.dtype not in (np.uint8, np.uint16):
+        img = img.astype(np.float32)
+        if not np.isfinite(img).all():
+            raise SlmlabError("holds non-finite pixel values; re-export it as an integer image", path)
     return img
+
+
+def _as_float(img: np.ndarray) -> np.ndarray:
+    return img if img.dtype == np.float32 else img.astype(np.float32)
+
+
+def as_8bit(img: np.ndarray) -> np.ndarray:
+    """An 8-bit copy for OpenCV functions that take only 8-bit images: 16-bit and float images are scaled from
+    their 0.1 to 99.9 percentile (robust to a few hot pixels)."""
+    if img.dtype == np.uint8:
+        return img
+    f = _as_float(img)
+    lo, hi = np.percentile(f[::4, ::4], [0.1, 99.9])
+    return cv2.convertScaleAbs(f, alpha=255.0 / max(hi - lo, 1e-6), beta=-lo * 255.0 / max(hi - lo, 1e-6))
+
+
+def dot_polarity(img: np.ndarray) -> bool:
+    """``True`` for dark dots on a bright plate, ``False`` for bright dots on a dark one: the dots are the
+    minority class of an Otsu split of the image (a dot plate is mostly background)."""
+    small = as_8bit(cv2.resize(img, (max(img.shape[1] // 4, 1), max(img.shape[0] // 4, 1)),
+                               interpolation=cv2.INTER_AREA))
+    t, _ = cv2.threshold(small, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return bool(np.mean(small > t) > 0.5)
 
 
 # ------------------------------------------------------------------------------------------ detection
 def estimate_background(img: np.ndarray, *, dark: bool = True, reduce: int = 8, window_px: int = 160) -> np.ndarray:
     """Smooth illumination under the dots [grey levels, float32], by a max (min) filter at 1/``reduce``
     scale over ``window_px`` (larger than a dot)."""
+    return _filtered(img, dark, reduce, window_px)
+
+
+def _filtered(img: np.ndarray, high: bool, reduce: int, window_px: int) -> np.ndarray:
     h, w = img.shape
-    small = cv2.resize(img, (max(w // reduce, 1), max(h // reduce, 1)), interpolation=cv2.INTER_AREA)
+    small = cv2.resize(_as_float(img), (max(w // reduce, 1), max(h // reduce, 1)), interpolation=cv2.INTER_AREA)
     k = max(3, int(window_px / reduce) | 1)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    small = cv2.dilate(small, kernel) if dark else cv2.erode(small, kernel)
-    small = cv2.GaussianBlur(small.astype(np.float32), (0, 0), k / 2)
+    small = cv2.dilate(small, kernel) if high else cv2.erode(small, kernel)
+    small = cv2.GaussianBlur(small, (0, 0), k / 2)
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
 @dataclass
+class Marker:
+    """A marker on the plate: ``kind`` (``'triangle'``, ``'square'``, ``'frame'``: a frame around a dot) and
+    its centre ``(w1, w2)`` [px]."""
+
+    kind: str
+    centre: tuple[float, float]
+
+
+@dataclass
 class Blobs:
-    """Candidate dots of one image: first-guess centres ``(n, 2)`` [px], areas [px²], equivalent radii [px]
-    and whether each has a hole (a donut marker)."""
+    """Candidate dots of one image: first-guess centres ``(n, 2)`` [px], areas [px²], equivalent radii [px],
+    whether each has a hole (a donut marker), the polygon markers found, and the count of rejected blobs."""
 
     centres: np.ndarray
     areas: np.ndarray
     radii: np.ndarray
     holes: np.ndarray
     rejected: int = 0
+    markers: list = field(default_factory=list)
 
 
 def find_blobs(img: np.ndarray, *, dark: bool = True, threshold: float = 0.6, background: np.ndarray | None = None,
                min_area_px: float = 12.0) -> Blobs:
-    """Dots as external contours of the pixels darker (brighter) than ``threshold`` × background.
+    """Dots as external contours of the pixels beyond ``1 − threshold`` of the way from the background to
+    the dots' level (for dark dots, whose level is zero: darker than ``threshold`` × background).
 
     Blobs touching the border, much smaller or larger than the median, or not round are rejected (counted in
-    ``rejected``).
+    ``rejected``); among the rejected, polygons of about a dot's size are returned as markers.
     """
-    bg = estimate_background(img, dark=dark) if background is None else background
+    f = _as_float(img)
+    bg = estimate_background(f, dark=dark) if background is None else background
     if dark:
-        mask = cv2.compare(img, np.clip(threshold * bg, 0, 255).astype(np.uint8), cv2.CMP_LT)
-    else:
-        mask = cv2.compare(img, np.clip(bg + (1 - threshold) * (255 - bg), 0, 255).astype(np.uint8), cv2.CMP_GT)
+        mask = f < threshold * bg
+    else:  # bright dots on a dark plate: the dots' level varies (illumination, reflectance); take it locally
+        fg = _filtered(f, True, 8, 480)
+        floor = 0.5 * float(np.percentile((f - bg)[::4, ::4], 99.5))
+        mask = f > bg + (1.0 - threshold) * np.maximum(fg - bg, floor)
+    mask = mask.astype(np.uint8)
     contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     h, w = img.shape
-    cents, areas, holes = [], [], []
+    cents, areas, holes, shapes = [], [], [], []
     rejected = 0
     if hierarchy is not None:
         hier = hierarchy[0]
@@ -116,22 +183,63 @@ def find_blobs(img: np.ndarray, *, dark: bool = True, threshold: float = 0.6, ba
                 rejected += 1
                 continue
             fill = area / (bw * bh)
-            if not (0.6 < fill < 0.95 and 0.5 < bw / bh < 2.0):
+            m = cv2.moments(cnt)
+            if m["m00"] <= 0:
                 rejected += 1
                 continue
-            m = cv2.moments(cnt)
-            cents.append((m["m10"] / m["m00"], m["m01"] / m["m00"]))
-            areas.append(area)
-            holes.append(hier[k, 2] != -1)
+            centre = (m["m10"] / m["m00"], m["m01"] / m["m00"])
+            hole = _largest_hole(contours, hier, k) >= 0.03 * area  # a donut's or a frame's, not texture
+            kind = _polygon_kind(cnt, area, hole)
+            if kind is None and 0.6 < fill < 0.95 and 0.5 < bw / bh < 2.0:
+                cents.append(centre)
+                areas.append(area)
+                holes.append(hole)
+                continue
+            rejected += 1
+            if kind is not None:
+                shapes.append((kind, centre, area))
     cents = np.asarray(cents, float).reshape(-1, 2)
     areas = np.asarray(areas, float)
     holes = np.asarray(holes, bool)
+    markers = []
     if len(areas):
         med = np.median(areas)
         ok = (areas > 0.5 * med) & (areas < 1.6 * med)  # two touching blobs (dust on a dot) are ~2x
         rejected += int((~ok).sum())
         cents, areas, holes = cents[ok], areas[ok], holes[ok]
-    return Blobs(cents, areas, np.sqrt(areas / np.pi), holes, rejected)
+        markers = [Marker(kind, centre) for kind, centre, area in shapes
+                   if (0.3 * med < area < 4.0 * med) or kind == "frame"]
+    return Blobs(cents, areas, np.sqrt(areas / np.pi), holes, rejected, markers)
+
+
+def _largest_hole(contours, hier, k: int) -> float:
+    """Area [px²] of the largest hole of contour ``k`` (0 without one)."""
+    best, child = 0.0, hier[k, 2]
+    while child != -1:
+        best = max(best, cv2.contourArea(contours[child]))
+        child = hier[child, 0]
+    return best
+
+
+def _polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
+    """``'triangle'``, ``'square'`` or ``'frame'`` (a square outline around a dot) for a contour large
+    enough to show its shape (≥ 150 px²); ``None`` for anything else (a dot, dust).
+
+    By two fills that an affine view leaves unchanged: of the smallest enclosing triangle (about 0.9 for a
+    triangle, ``π/3√3`` = 0.60 for any ellipse, 0.5 for a square) and of the smallest enclosing rectangle
+    (about 1 for a square, ``π/4`` for any ellipse)."""
+    if area < 150:
+        return None
+    hull = cv2.convexHull(cnt)
+    (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
+    rect_fill = area / max(rw * rh, 1e-9)
+    square = rect_fill > 0.88 and 0.6 < rw / max(rh, 1e-9) < 1.6
+    if has_hole:
+        return "frame" if square else None
+    tri_area, _ = cv2.minEnclosingTriangle(hull)
+    if area / max(tri_area, 1e-9) > 0.78:
+        return "triangle"
+    return "square" if square else None
 
 
 # ------------------------------------------------------------------------------------------ sub-pixel
@@ -167,9 +275,16 @@ def _flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool) -
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    b = np.maximum(_plane(coef, ox[None], oy[None]), 1.0)
-    contrast = (1.0 - p / b) if dark else (p / b - 1.0)
+    contrast = _contrast(p, _plane(coef, ox[None], oy[None]), dark)
     return _Flat(base, ox, oy, contrast, coef)
+
+
+def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
+    """A dot's contrast: ``1 − I/B`` for dark dots (flat-fielded: illumination scales plate and dot alike),
+    ``I − B`` for bright dots on a dark plate (whose background is an offset, often near zero)."""
+    if dark:
+        return 1.0 - values / np.maximum(background, 1.0)
+    return values - background
 
 
 def _plane(coef: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
@@ -224,14 +339,13 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    h, w = img.shape
-    x = np.clip(x, 0, w - 1.001)
-    y = np.clip(y, 0, h - 1.001)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = x - x0, y - y0
-    f = img.astype(np.float32) if img.dtype != np.float32 else img
-    return ((1 - fx) * (1 - fy) * f[y0, x0] + fx * (1 - fy) * f[y0, x0 + 1]
-            + (1 - fx) * fy * f[y0 + 1, x0] + fx * fy * f[y0 + 1, x0 + 1])
+    """Bilinear samples of ``img`` at ``(x, y)`` [px] (any shape), replicating the border (``cv2.remap``)."""
+    f = _as_float(img)
+    shape = np.broadcast(x, y).shape
+    n = shape[0] if len(shape) > 1 else 1
+    mx = np.broadcast_to(x, shape).astype(np.float32).reshape(n, -1)
+    my = np.broadcast_to(y, shape).astype(np.float32).reshape(n, -1)
+    return cv2.remap(f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
 
 
 def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
@@ -247,6 +361,7 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
         return c
     r = float(np.median(radii))
     flat, reach = _flat_for(img, c, radii, dark)
+    img = _as_float(img)  # once, for the samples of every iteration
     t = np.linspace(0, 2 * np.pi, rays, endpoint=False)
     steps = np.linspace(0.0, 1.0, 96)
     rad = steps * reach
@@ -256,8 +371,7 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     for _ in range(iterations):
         f = c - flat.base
         vals = _bilinear(img, c[:, 0, None, None] + ox, c[:, 1, None, None] + oy)
-        b = np.maximum(_plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None]), 1.0)
-        con = (1.0 - vals / b) if dark else (vals / b - 1.0)
+        con = _contrast(vals, _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None]), dark)
         level = 0.5 * np.median(con[:, :, :core], axis=(1, 2))
         below = con < level[:, None, None]
         below[:, :, 0] = False
@@ -387,12 +501,79 @@ def index_lattice(c: np.ndarray, *, tolerance: float = 0.3) -> tuple[Lattice | N
     return lat, on
 
 
-def _absolute(lat: Lattice, on: np.ndarray, rows: int, cols: int, image_size: tuple[int, int], margin_px: float):
-    """Turn relative lattice indices into plate ``[row, col]`` (1-based); ``None`` if ambiguous."""
+@dataclass
+class PlateLattice:
+    """The dots on the lattice in plate units, oriented with the image.
+
+    ``i1, i2`` are integer lattice coordinates of the on-lattice blobs ``index`` (into the blob arrays):
+    ``i1`` grows along the lattice axis nearer ``+w1``, ``i2`` along the one nearer ``+w2``. The unit is the
+    plate's pitch, or half of it on a two-level plate, whose two levels are then the two classes of ``i1``
+    (and ``i2``) parity; the other lattice nodes (mixed parity) are holes, where such plates put their
+    markers. ``lattice`` is the fitted lattice model of :func:`index_lattice`.
+    """
+
+    i1: np.ndarray
+    i2: np.ndarray
+    index: np.ndarray
+    two_level: bool
+    lattice: Lattice
+    _ab: np.ndarray = field(repr=False, default=None)
+
+    def to_ab(self, i1, i2) -> tuple[np.ndarray, np.ndarray]:
+        """Lattice-model coordinates ``(a, b)`` of plate-unit coordinates (fractional allowed)."""
+        m = self._ab  # (2, 2): (i1, i2) = m @ (a, b)
+        inv = np.linalg.inv(m)
+        i = np.stack([np.asarray(i1, float), np.asarray(i2, float)])
+        ab = inv @ i.reshape(2, -1)
+        return ab[0].reshape(np.shape(i1)), ab[1].reshape(np.shape(i1))
+
+    def predict(self, i1, i2) -> np.ndarray:
+        """Image positions ``(…, 2)`` [px] of plate-unit coordinates."""
+        return self.lattice.predict(*self.to_ab(i1, i2))
+
+    def locate(self, point) -> tuple[float, float]:
+        """Plate-unit coordinates (fractional) of an image point [px], by Newton on the lattice model."""
+        p = np.asarray(point, float)
+        on = self.lattice.predict(self.lattice.a[self.index], self.lattice.b[self.index])
+        k = int(np.argmin(np.hypot(*(on - p).T)))
+        x = np.array([self.i1[k], self.i2[k]], float)
+        for _ in range(4):
+            f = self.predict(x[0], x[1])
+            h = 1e-3
+            jac = np.column_stack([(self.predict(x[0] + h, x[1]) - f) / h, (self.predict(x[0], x[1] + h) - f) / h])
+            x = x + np.linalg.solve(jac, p - f)
+        return float(x[0]), float(x[1])
+
+
+def plate_lattice(lat: Lattice, on: np.ndarray, *, two_level: bool = False) -> PlateLattice:
+    """:class:`PlateLattice` of an indexed lattice (:func:`index_lattice`). On a two-level plate the dots form
+    one lattice rotated by 45°, whose steps ``u, v`` are half-diagonals of the plate's cell: a dot at
+    ``a·u + b·v`` is at ``(a + b, a − b)`` half-pitches along the plate axes ``(u + v)/2`` and ``(u − v)/2``."""
+    idx = np.flatnonzero(on)
+    a, b = lat.a[idx].astype(float), lat.b[idx].astype(float)
+    d = lat.coef[1:3]  # image steps of one unit of a and of b (at the lattice model's origin), rows u, v
+    if two_level:
+        axes = np.array([(d[0] + d[1]) / 2, (d[0] - d[1]) / 2])
+        m = np.array([[1.0, 1.0], [1.0, -1.0]])
+    else:
+        axes = d.copy()
+        m = np.eye(2)
+    if abs(axes[0][0]) < abs(axes[1][0]):  # axis 1 is the one nearer w1
+        axes, m = axes[::-1], m[::-1]
+    if axes[0][0] < 0:
+        m[0] = -m[0]
+    if axes[1][1] < 0:
+        m[1] = -m[1]
+    i = m @ np.stack([a, b])
+    return PlateLattice(np.rint(i[0]).astype(int), np.rint(i[1]).astype(int), idx, two_level, lat, m)
+
+
+def _absolute(pl: PlateLattice, rows: int, cols: int, image_size: tuple[int, int], margin_px: float):
+    """Plate ``[row, col]`` (1-based) of a whole plate of ``rows × cols`` dots in view (or cut by the image on
+    one side of each axis): ``None`` and a reason if ambiguous."""
     w, h = image_size
-    a, b = lat.a[on], lat.b[on]
     out = []
-    for idx, other, count in ((a, b, cols), (b, a, rows)):
+    for idx, other, count, axis in ((pl.i1, pl.i2, cols, 0), (pl.i2, pl.i1, rows, 1)):
         lo, hi = idx.min(), idx.max()
         span = hi - lo + 1
         if span > count:
@@ -403,10 +584,10 @@ def _absolute(lat: Lattice, on: np.ndarray, rows: int, cols: int, image_size: tu
         others = np.arange(other.min(), other.max() + 1)
 
         def outside(k):
-            if idx is a:
-                p = lat.predict(np.full(len(others), k), others)
+            if axis == 0:
+                p = pl.predict(np.full(len(others), k), others)
             else:
-                p = lat.predict(others, np.full(len(others), k))
+                p = pl.predict(others, np.full(len(others), k))
             return bool(np.any((p[:, 0] < margin_px) | (p[:, 0] > w - 1 - margin_px)
                                | (p[:, 1] < margin_px) | (p[:, 1] > h - 1 - margin_px)))
         before, after = outside(lo - 1), outside(hi + 1)
@@ -419,153 +600,218 @@ def _absolute(lat: Lattice, on: np.ndarray, rows: int, cols: int, image_size: tu
     return (out[1], out[0]), ""
 
 
-def _marker_indices(lat: Lattice, on: np.ndarray, holes: np.ndarray, origin: tuple[int, int]):
-    """Plate ``[row, col]`` from three marker dots (donuts) forming an L on the lattice: the corner marker is
-    ``origin``, columns count towards the marker on its row, rows towards the marker on its column."""
+def _donut_indices(pl: PlateLattice, holes: np.ndarray, origin: tuple[int, int]):
+    """Plate ``[row, col]`` from three donut markers forming an L on the lattice (DICe targets): the corner
+    marker is ``origin``, columns count towards the marker on its row, rows towards the marker on its
+    column."""
     from itertools import permutations
 
-    idx = np.flatnonzero(on & holes)
+    idx = np.flatnonzero(holes[pl.index])
     for k0, kx, ky in permutations(idx, 3):
-        if lat.b[kx] == lat.b[k0] and lat.a[ky] == lat.a[k0] and kx != ky:
-            sa = np.sign(lat.a[kx] - lat.a[k0])
-            sb = np.sign(lat.b[ky] - lat.b[k0])
-            col = sa * (lat.a[on] - lat.a[k0]) + origin[1]
-            row = sb * (lat.b[on] - lat.b[k0]) + origin[0]
+        if pl.i2[kx] == pl.i2[k0] and pl.i1[ky] == pl.i1[k0] and kx != ky:
+            s1 = np.sign(pl.i1[kx] - pl.i1[k0])
+            s2 = np.sign(pl.i2[ky] - pl.i2[k0])
+            col = s1 * (pl.i1 - pl.i1[k0]) + origin[1]
+            row = s2 * (pl.i2 - pl.i2[k0]) + origin[0]
             return (row, col), ""
-    return None, f"{len(idx)} marker dot(s) found but no three of them form an L on the lattice"
+    return None, f"{len(idx)} donut marker(s) found but no three of them form an L on the lattice"
+
+
+_UNITS = [np.array(v) for v in ((1, 0), (0, 1), (-1, 0), (0, -1))]
+
+
+def _origin_frame(pl: PlateLattice, markers: list):
+    """Plate-frame coordinates ``(x, y)`` [plate units] of the on-lattice dots from the plate's markers, and how.
+
+    * a **square and a triangle** (stereo-PIV plates): the origin is the dot in the corner of the lattice
+      cell the two markers span such that, seen from the camera, ``+x`` points from the origin to the
+      triangle and ``+y`` to the square, 90° counter-clockwise from ``+x`` (a right-handed plate frame whose
+      ``z`` points towards the camera); the other corner is the mirror image and is not a solution;
+    * a **frame** around a dot: that dot is the origin, ``+x`` along the image's ``w1`` and ``+y`` against
+      ``w2`` (up in the image).
+    """
+    kinds = {}
+    for m in markers:
+        kinds.setdefault(m.kind, []).append(m)
+    if len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1:
+        t = np.rint(pl.locate(kinds["triangle"][0].centre)).astype(int)
+        s = np.rint(pl.locate(kinds["square"][0].centre)).astype(int)
+        dots = set(zip(pl.i1.tolist(), pl.i2.tolist()))
+        for ex in _UNITS:
+            n = t - ex
+            ey = s - n
+            # counter-clockwise on screen (w2 down): (d1, d2) -> (d2, -d1)
+            if np.array_equal(ey, np.array([ex[1], -ex[0]])):
+                if pl.two_level and (n[0] + n[1]) % 2:
+                    continue
+                rel = np.stack([pl.i1 - n[0], pl.i2 - n[1]], axis=1)
+                how = ("square and triangle markers" + ("" if tuple(n) in dots else " (origin dot not seen)"))
+                return (rel @ ex, rel @ ey), how
+        return None, "a square and a triangle marker were found but do not span one lattice cell"
+    frames = kinds.get("frame", [])
+    if len(frames) == 1:
+        n = np.rint(pl.locate(frames[0].centre)).astype(int)
+        return ((pl.i1 - n[0]), -(pl.i2 - n[1])), "a frame around the origin dot"
+    if markers:
+        found = ", ".join(f"{len(v)} {k}" for k, v in kinds.items())
+        return None, f"markers found ({found}) but not a square and a triangle, nor one frame"
+    return None, "no markers found"
+
+
+def lattice_residual_px(table: pd.DataFrame) -> float:
+    """How smoothly the centres of one image lie on their lattice [px]: the RMS residual (per coordinate,
+    net of the fitted parameters) of a cubic in the lattice coordinates ``i1, i2`` fitted to ``w1, w2``, per
+    level. Distortion and perspective are smooth and absorbed; what is left is the centres' own scatter, and
+    a centre estimator's error that varies from dot to dot (texture, dust, scratches on real plates)."""
+    sse, dof = 0.0, 0
+    for _, s in table.groupby("level"):
+        if len(s) < 12:
+            continue
+        x, y = s["i1"].to_numpy(float), s["i2"].to_numpy(float)
+        x, y = (x - x.mean()) / max(x.std(), 1.0), (y - y.mean()) / max(y.std(), 1.0)
+        a = np.column_stack([x ** i * y ** j for i in range(4) for j in range(4 - i)])
+        w = s[["w1", "w2"]].to_numpy(float)
+        coef, *_ = np.linalg.lstsq(a, w, rcond=None)
+        sse += float(np.sum((w - a @ coef) ** 2))
+        dof += 2 * (len(s) - a.shape[1])
+    return float(np.sqrt(sse / dof)) if dof > 0 else float("nan")
+
+
+def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict]:
+    """The centre estimator for a plate's images (``method="auto"``): both estimators on one image, compared
+    by :func:`lattice_residual_px`; ``ellipse`` only if it is below :data:`AUTO_ELLIPSE_RATIO` times the
+    moments' residual. Returns the method and the residual [px] of each."""
+    res = {m: lattice_residual_px(extract_image(img, rows, cols, method=m, **kw).table) for m in METHODS}
+    ok = all(np.isfinite(v) for v in res.values())
+    return ("ellipse" if ok and res["ellipse"] < AUTO_ELLIPSE_RATIO * res["moments"] else "moments"), res
 
 
 @dataclass
 class ImageDots:
-    """Dots found in one image: ``table`` with ``row, col, w1, w2, marker``; counts and a note."""
+    """Dots found in one image.
+
+    Attributes
+    ----------
+    table
+        one row per dot on the lattice: ``i1, i2`` (image-lattice coordinates, :class:`PlateLattice`),
+        ``w1, w2`` [px], ``marker`` (a donut), ``level`` (0, or 1 on a two-level plate's second level), and,
+        once anchored, ``row, col``; with an origin-anchored frame also ``xu, yu`` (plate-frame coordinates
+        in plate units from the origin dot).
+    frame
+        ``'plate'`` (``row, col`` are the plate's own indices), ``'origin'`` (``row = −yu``,
+        ``col = −xu`` up to one shift for the whole set: :mod:`slmlab.imageset` numbers them), or ``None``
+        (not anchored: ``note`` says why).
+    how
+        how the indices were anchored (for the notes).
+    """
 
     table: pd.DataFrame
     found: int
     rejected: int
     spurious: int
     note: str = ""
-    lattice: Lattice | None = field(default=None, repr=False)
+    lattice: PlateLattice | None = field(default=None, repr=False)
+    frame: str | None = None
+    how: str = ""
+    markers: list = field(default_factory=list)
+    dark: bool = True
 
 
-def extract_image(img: np.ndarray, rows: int, cols: int, *, method: str = "moments", dark: bool = True,
-                  dot_diameter_px: float | None = None, anchor: str = "plate",
-                  marker_origin: tuple[int, int] = (2, 2)) -> ImageDots:
-    """Find, refine and index the dots of a ``rows × cols`` plate in one 8-bit image.
+_EMPTY = {"i1": int, "i2": int, "w1": float, "w2": float, "marker": bool, "level": int, "row": int, "col": int}
+
+
+def _empty_table() -> pd.DataFrame:
+    return pd.DataFrame({k: pd.Series(dtype=t) for k, t in _EMPTY.items()})
+
+
+def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = None, *, method: str = "moments",
+                  dark: bool | None = True, dot_diameter_px: float | None = None, anchor: str = "auto",
+                  marker_origin: tuple[int, int] = (2, 2), two_level: bool = False) -> ImageDots:
+    """Find, refine and index the dots of a plate in one image (any bit depth).
 
     Parameters
     ----------
     img
-        grey-level image.
+        grey-level image (``uint8``, ``uint16`` or ``float32``).
     rows, cols
-        the plate's size.
+        the plate's size, or ``None`` for a plate larger than the field (then markers anchor the indices).
     method
         ``'moments'`` (default) or ``'ellipse'`` (see :func:`refine_moments`, :func:`refine_ellipse`).
     dark
-        dark dots on a bright plate.
+        dark dots on a bright plate (``True``), bright dots on a dark plate (``False``), or ``None``: decided
+        from the image (:func:`dot_polarity`).
     dot_diameter_px
-        expected dot diameter [px] if known (for the border margin of the indexing).
+        expected dot diameter [px] if known (for the border margin of the plate-size anchor).
     anchor
-        ``'plate'``: absolute indices from the plate's size and where the lattice leaves the image;
-        ``'markers'``: from three donut markers forming an L (targets that overfill the field, e.g. DICe's),
-        the corner marker at ``marker_origin`` ``(row, col)``.
+        ``'auto'``: markers where the plate has them (a donut L, a square and a triangle, a frame around a
+        dot), else the plate's size; ``'plate'``: from the plate's size and where the lattice leaves the image;
+        ``'markers'``: from markers only.
+    marker_origin
+        ``(row, col)`` of the corner donut of an L of donuts.
+    two_level
+        a two-level plate (rows alternating between two depths, offset by half a pitch): indices in half
+        pitches and a ``level`` per dot.
     """
     if method not in METHODS:
         raise SlmlabError(f"unknown centre method {method!r}; use one of {', '.join(METHODS)}")
+    if anchor not in ("auto", "plate", "markers"):
+        raise SlmlabError(f"unknown anchor {anchor!r}; use 'auto', 'plate' or 'markers'")
+    if dark is None:
+        dark = dot_polarity(img)
     blobs = find_blobs(img, dark=dark)
-    empty = pd.DataFrame({"row": pd.Series(dtype=int), "col": pd.Series(dtype=int), "w1": pd.Series(dtype=float),
-                          "w2": pd.Series(dtype=float), "marker": pd.Series(dtype=bool)})
     if len(blobs.centres) < 4:
-        return ImageDots(empty, len(blobs.centres), blobs.rejected, 0, "fewer than 4 dots found")
+        return ImageDots(_empty_table(), len(blobs.centres), blobs.rejected, 0,
+                         f"{len(blobs.centres)} dot(s) found, at least 4 are needed", markers=blobs.markers, dark=dark)
     refine = refine_moments if method == "moments" else refine_ellipse
     centres = refine(img, blobs.centres, blobs.radii, dark=dark)
     lat, on = index_lattice(centres)
     spurious = int((~on).sum())
-    radius = (dot_diameter_px / 2) if dot_diameter_px else float(np.median(blobs.radii))
-    if anchor == "markers":
-        ij, note = _marker_indices(lat, on, blobs.holes, marker_origin)
+    pl = plate_lattice(lat, on, two_level=two_level)
+    k = pl.index
+    level = ((pl.i1 % 2) if two_level else np.zeros(len(k), int)).astype(int)
+    table = pd.DataFrame({"i1": pl.i1, "i2": pl.i2, "w1": centres[k, 0], "w2": centres[k, 1],
+                          "marker": blobs.holes[k], "level": level})
+    frame, how, note = None, "", ""
+    donuts = int(blobs.holes[k].sum())
+    use_markers = anchor == "markers" or (anchor == "auto" and (donuts >= 3 or blobs.markers))
+    if use_markers and donuts >= 3:
+        ij, note = _donut_indices(pl, blobs.holes, marker_origin)
+        if ij is not None:
+            table["row"], table["col"], frame, how = ij[0], ij[1], "plate", "an L of donut markers"
+    elif use_markers:
+        xy, msg = _origin_frame(pl, blobs.markers)
+        if xy is None:
+            note = msg
+        else:
+            frame, how = "origin", msg
+            if two_level:  # the origin's level is level 0
+                table["level"] = (xy[0] % 2).astype(int)
+            table["xu"], table["yu"] = xy[0].astype(int), xy[1].astype(int)
+            table["row"], table["col"] = -table["yu"], -table["xu"]
+    if frame is None and not note and anchor != "markers":
+        if rows is None or cols is None:
+            note = ("no markers found and the plate's rows and cols are not given (a plate larger than the "
+                    "field needs markers, or neighbouring images to track it from)")
+        else:
+            radius = (dot_diameter_px / 2) if dot_diameter_px else float(np.median(blobs.radii))
+            ij, note = _absolute(pl, rows, cols, (img.shape[1], img.shape[0]), radius + 2)
+            if ij is not None:
+                table["row"], table["col"], frame, how = ij[0], ij[1], "plate", "the plate's size"
+    if frame is None:
+        table["row"] = pd.Series(dtype=int)
+        table["col"] = pd.Series(dtype=int)
     else:
-        ij, note = _absolute(lat, on, rows, cols, (img.shape[1], img.shape[0]), radius + 2)
-    if ij is None:
-        return ImageDots(empty, len(centres), blobs.rejected, spurious, note, lat)
-    table = pd.DataFrame({"row": ij[0].astype(int), "col": ij[1].astype(int), "w1": centres[on, 0],
-                          "w2": centres[on, 1], "marker": blobs.holes[on]})
-    table = table.sort_values(["row", "col"]).reset_index(drop=True)
-    return ImageDots(table, len(centres), blobs.rejected, spurious, note, lat)
+        table = table.sort_values(["row", "col"], kind="stable").reset_index(drop=True)
+    return ImageDots(table, len(centres), blobs.rejected, spurious, note if frame is None else "", pl, frame, how,
+                     blobs.markers, dark)
 
 
 # ------------------------------------------------------------------------------------------ sets
-def extract_set(set_dir: str | Path, *, method: str = "moments", progress: bool | None = None) -> tuple[pd.DataFrame, list[str]]:
-    """Extract every image of ``set_dir/images/`` into the rows of ``points.csv``.
+def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | None = None):
+    """Extract every image of a set into the rows of ``points.csv``: see :func:`slmlab.imageset.extract_set`."""
+    from .imageset import extract_set as _extract_set
 
-    The stage positions are taken from the set's existing ``points.csv`` (re-extraction) or from
-    ``stage.csv`` (columns ``sequence, position, stage_x_mm, stage_y_mm, stage_z_mm``). Returns the new
-    points table and notes (images not indexed, spurious blobs dropped).
-    """
-    from tqdm import tqdm
-
-    from .io import IMAGE_COLUMNS, POINT_COLUMNS, _read_meta, read_set
-
-    set_dir = Path(set_dir)
-    images = set_dir / "images"
-    if not images.is_dir():
-        raise SlmlabError("has no images/ folder; render one with 'simulate --images' or add "
-                          "{sequence}_{position:03d}_{l|r}.png files", set_dir)
-    meta = _read_meta(set_dir / "meta.json")
-    files = sorted(p for p in images.iterdir() if IMAGE_NAME.match(p.name))
-    if not files:
-        raise SlmlabError("images/ holds no file named {sequence}_{position:03d}_{l|r}.png", images)
-    if (set_dir / "points.csv").exists():
-        stage = read_set(set_dir).points[["sequence", "position", "stage_x_mm", "stage_y_mm", "stage_z_mm"]]
-    elif (set_dir / "stage.csv").exists():
-        stage = pd.read_csv(set_dir / "stage.csv")
-    else:
-        raise SlmlabError("needs the stage positions: a points.csv to re-extract, or stage.csv with sequence, "
-                          "position, stage_x_mm, stage_y_mm, stage_z_mm", set_dir)
-    stage = stage.drop_duplicates(["sequence", "position"]).set_index(["sequence", "position"])
-    pairs: dict[tuple[str, int], dict[str, Path]] = {}
-    for f in files:
-        m = IMAGE_NAME.match(f.name)
-        pairs.setdefault((m["sequence"], int(m["position"])), {})[m["side"]] = f
-    notes, frames = [], []
-    size = None
-    for (seq, pos), sides in tqdm(sorted(pairs.items()), desc="extracting", unit="pair",
-                                  disable=None if progress is None else not progress):
-        if (seq, pos) not in stage.index:
-            raise SlmlabError(f"no stage position for sequence {seq}, position {pos}", set_dir / "points.csv")
-        plate = meta["plates"]["grid" if seq == "grid" else "moving"]
-        per_side = {}
-        for side in "lr":
-            if side not in sides:
-                notes.append(f"{seq} position {pos}: no {side} image")
-                continue
-            img = read_image(sides[side])
-            if size is None:
-                size = img.shape
-            elif img.shape != size:
-                raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are "
-                                  f"{size[1]} × {size[0]}; all images of a set must have one size", sides[side])
-            dots = extract_image(img, int(plate["rows"]), int(plate["cols"]), method=method)
-            if dots.note:
-                notes.append(f"{sides[side].name}: not indexed ({dots.note})")
-            if dots.spurious:
-                notes.append(f"{sides[side].name}: {dots.spurious} blob(s) off the lattice dropped")
-            per_side[side] = dots.table.set_index(["row", "col"])[["w1", "w2"]]
-        i, j = np.meshgrid(np.arange(1, int(plate["rows"]) + 1), np.arange(1, int(plate["cols"]) + 1), indexing="ij")
-        df = pd.DataFrame({"row": i.ravel(), "col": j.ravel()}).set_index(["row", "col"])
-        for side in "lr":
-            t = per_side.get(side)
-            df[f"w{side}1"] = t["w1"].reindex(df.index) if t is not None else np.nan
-            df[f"w{side}2"] = t["w2"].reindex(df.index) if t is not None else np.nan
-        df = df.reset_index()
-        st = stage.loc[(seq, pos)]
-        df.insert(0, "sequence", seq)
-        df.insert(1, "position", pos)
-        for c in ("stage_x_mm", "stage_y_mm", "stage_z_mm"):
-            df[c] = float(st[c])
-        frames.append(df[POINT_COLUMNS])
-    points = pd.concat(frames, ignore_index=True)
-    points = points[points[IMAGE_COLUMNS].notna().any(axis=1)].reset_index(drop=True)
-    return points, notes
+    return _extract_set(set_dir, method=method, progress=progress)
 
 
 def extraction_errors(points: pd.DataFrame, cal) -> pd.DataFrame:

@@ -27,6 +27,7 @@ __all__ = [
     "STAGE_COLUMNS",
     "IMAGE_COLUMNS",
     "POINT_COLUMNS",
+    "TARGET_COLUMNS",
     "CalibrationSet",
     "read_set",
     "write_set",
@@ -42,6 +43,9 @@ STAGE_COLUMNS = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
 IMAGE_COLUMNS = ["wl1", "wl2", "wr1", "wr2"]
 POINT_COLUMNS = ["sequence", "position", *STAGE_COLUMNS, "row", "col", *IMAGE_COLUMNS]
 TRUTH_COLUMNS = [*KEY_COLUMNS, *IMAGE_COLUMNS, "X_mm", "Y_mm", "Z_mm"]
+#: optional columns of a known-target set: a dot's position in its target's own frame [mm]
+TARGET_COLUMNS = ["x_mm", "y_mm", "z_mm"]
+PATTERNS = ("dots", "chessboard", "circles", "asymmetric-circles", "charuco")
 FLOAT_FORMAT = "%.10g"
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -91,6 +95,17 @@ class CalibrationSet:
         """The plate description (rows, cols, pitch_mm, dot_diameter_mm) of a sequence."""
         return self.meta["plates"]["grid" if sequence == "grid" else "moving"]
 
+    @property
+    def known_target(self) -> bool:
+        """Whether the set gives each dot's position in its target's frame (``x_mm, y_mm, z_mm``)."""
+        return all(c in self.points.columns for c in TARGET_COLUMNS)
+
+    def world(self, rows: pd.DataFrame | None = None) -> np.ndarray:
+        """World positions ``(n, 3)`` [mm] of the dots of a known-target set: the commanded stage position
+        plus the dot's position on its target (NaN where it is not known)."""
+        df = self.points if rows is None else rows
+        return df[STAGE_COLUMNS].to_numpy(float) + df[TARGET_COLUMNS].to_numpy(float)
+
     def image_coordinates(self, sequence: str | None = None) -> np.ndarray:
         """``(n, 4)`` array ``wl1, wl2, wr1, wr2`` [px] of one sequence (or all rows)."""
         df = self.points if sequence is None else self.sequence(sequence)
@@ -106,6 +121,7 @@ class CalibrationSet:
             "positions": seq,
             "rows": int(len(self.points)),
             "rows_with_all_coordinates": int(self.points[IMAGE_COLUMNS].notna().all(axis=1).sum()),
+            "known_target": self.known_target,
         }
 
 
@@ -264,14 +280,43 @@ def _read_meta(path: Path) -> dict:
     for name, plate in plates.items():
         if not isinstance(plate, dict):
             raise SlmlabError(f"plates.{name} must be an object with rows, cols, pitch_mm, dot_diameter_mm", path)
-        for key, integer in (("rows", True), ("cols", True), ("pitch_mm", False), ("dot_diameter_mm", False)):
+        for key, integer, required in (("rows", True, False), ("cols", True, False), ("pitch_mm", False, True),
+                                       ("dot_diameter_mm", False, plate.get("pattern", "dots") == "dots")):
             v = plate.get(key)
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-            if ok and integer:
-                ok = float(v).is_integer()
-            if not ok:
-                raise SlmlabError(f"plates.{name}.{key} must be a positive {'whole number' if integer else 'number'}", path)
+            if v is None and not required:
+                continue
+            if not _positive(v, integer):
+                raise SlmlabError(f"plates.{name}.{key} must be a positive {'whole number' if integer else 'number'}"
+                                  + ("" if required else " (or left out)"), path)
+        if ("rows" in plate) != ("cols" in plate):
+            raise SlmlabError(f"plates.{name} gives only one of rows and cols; give both, or neither for a plate "
+                              "larger than the field", path)
+        dots = plate.get("dots")
+        if dots is not None and dots not in ("dark", "bright"):
+            raise SlmlabError(f"plates.{name}.dots must be 'dark' or 'bright' (or left out: decided from the image)", path)
+        pattern = plate.get("pattern", "dots")
+        if pattern not in PATTERNS:
+            raise SlmlabError(f"plates.{name}.pattern {pattern!r} is not one of {', '.join(PATTERNS)}", path)
+        levels = plate.get("levels", 1)
+        if levels not in (1, 2):
+            raise SlmlabError(f"plates.{name}.levels must be 1 or 2 (a two-level plate)", path)
+        off = plate.get("level_offset_mm")
+        if off is not None and not (isinstance(off, (int, float)) and not isinstance(off, bool) and math.isfinite(off)):
+            raise SlmlabError(f"plates.{name}.level_offset_mm must be a number: the second level's z in the plate's "
+                              "frame [mm]", path)
+        origin = plate.get("marker_origin")
+        if origin is not None and not (isinstance(origin, list) and len(origin) == 2
+                                       and all(_positive(v, True) for v in origin)):
+            raise SlmlabError(f"plates.{name}.marker_origin must be [row, col] of the corner donut", path)
+        if pattern == "charuco" and not isinstance(plate.get("board"), dict):
+            raise SlmlabError(f"plates.{name} is a ChArUco board: give board = {{squares: [x, y], marker_mm, "
+                              "dictionary, legacy}}", path)
     return meta
+
+
+def _positive(v, integer: bool) -> bool:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+    return bool(ok and (not integer or float(v).is_integer()))
 
 
 def read_set(path: str | os.PathLike) -> CalibrationSet:
@@ -301,7 +346,14 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
         out[c] = _numeric(df, c, pfile, allow_empty=False, integer=True, minimum=1).astype(int)
     for c in IMAGE_COLUMNS:
         out[c] = _numeric(df, c, pfile, allow_empty=True)
-    extra = [c for c in df.columns if c not in POINT_COLUMNS]
+    given = [c for c in TARGET_COLUMNS if c in df.columns]
+    if given and len(given) < 3:
+        missing = [c for c in TARGET_COLUMNS if c not in given]
+        raise SlmlabError(f"has {', '.join(given)} but not {', '.join(missing)}; a known-target set gives all three "
+                          "of x_mm, y_mm, z_mm (the dot's position in its target's frame)", pfile)
+    for c in given:  # empty where a dot's place is not known (e.g. a two-level plate without level_offset_mm)
+        out[c] = _numeric(df, c, pfile, allow_empty=True)
+    extra = [c for c in df.columns if c not in POINT_COLUMNS and c not in TARGET_COLUMNS]
     for c in extra:
         out[c] = df[c]
 
@@ -314,6 +366,12 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
         if name not in plates:
             raise SlmlabError(f"sequence{'s' if not is_grid else ''} {'grid' if is_grid else 'other than grid'} "
                               f"need plates.{name} in meta.json", path / "meta.json")
+        if plates[name].get("rows") is None:
+            if not given:
+                raise SlmlabError(f"plates.{name} has no rows and cols (a plate larger than the field), so its "
+                                  "frame comes from x_mm, y_mm, z_mm columns, which points.csv lacks; give the "
+                                  "plate's size or extract the set with 'python -m slmlab extract'", path / "meta.json")
+            continue
         for c, lim in (("row", plates[name]["rows"]), ("col", plates[name]["cols"])):
             bad = rows[c] > lim
             if bad.any():
@@ -327,7 +385,7 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
     if dup.any():
         groups = out[dup].groupby(KEY_COLUMNS, sort=False)
         for _, g in groups:
-            vals = g[STAGE_COLUMNS + IMAGE_COLUMNS].to_numpy(float)
+            vals = g[STAGE_COLUMNS + IMAGE_COLUMNS + given].to_numpy(float)
             same = np.all((vals == vals[0]) | (np.isnan(vals) & np.isnan(vals[0])))
             if not same:
                 k = int(g.index[1])
@@ -366,7 +424,8 @@ def write_set(path: str | os.PathLike, cal: CalibrationSet) -> Path:
     if not path.parent.exists():
         raise SlmlabError(f"the folder {path.parent} does not exist; create it first", path)
     path.mkdir(exist_ok=True)
-    write_csv(path / "points.csv", cal.points[POINT_COLUMNS + [c for c in cal.points.columns if c not in POINT_COLUMNS]])
+    cols = POINT_COLUMNS + [c for c in TARGET_COLUMNS if c in cal.points.columns]
+    write_csv(path / "points.csv", cal.points[cols + [c for c in cal.points.columns if c not in cols]])
     if cal.truth is not None:
         write_csv(path / "truth.csv", cal.truth[TRUTH_COLUMNS])
     atomic_write_text(path / "meta.json", json_text(cal.meta))

@@ -139,7 +139,7 @@ def test_simulate_and_extract_bad_input(tmp_path, work):
     f = tmp_path / "file"
     f.write_text("x")
     assert_user_error(cli("simulate", f), "is a file")
-    assert_user_error(cli("extract", work), "no images/")
+    assert_user_error(cli("extract", work), "has no images")
     (work / "images").mkdir()
     assert_user_error(cli("extract", work), "no file named")
     (work / "images" / "X_001_l.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")

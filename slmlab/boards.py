@@ -1,0 +1,138 @@
+"""Calibration targets that OpenCV detects itself: chessboards, circle grids and ChArUco boards.
+
+Where OpenCV has the detector, slmlab uses it (:func:`detect_board`) and only turns its output into the
+interchange format (DATA_FORMAT.md):
+
+``chessboard``
+    inner corners ``rows × cols`` of a chessboard of square ``pitch_mm``: ``cv2.findChessboardCornersSB``
+    (the sector-based detector, sub-pixel accurate by design), else ``cv2.findChessboardCorners`` refined by
+    ``cv2.cornerSubPix``.
+``circles``, ``asymmetric-circles``
+    ``cv2.findCirclesGrid`` (symmetric or asymmetric grid), with a blob detector set for the plate's polarity.
+``charuco``
+    a ChArUco board (``cv2.aruco.CharucoDetector``): a chessboard whose white squares carry ArUco markers, so
+    that every corner is numbered by the board itself, in every view, however much of the board is seen.
+    Stereo-microscope labs use them for that reason (e.g. Pycaso on a Leica CMO microscope). The plate's
+    ``board`` gives ``squares`` ``[x, y]``, ``marker_mm``, ``dictionary`` (an OpenCV name such as
+    ``"DICT_6X6_250"``) and ``legacy`` (the layout of OpenCV before 4.6, where the first square is black).
+
+Chessboards and circle grids are symmetric under a half turn: their corners are ordered so that ``[1, 1]``
+is the one nearest the image's top left and rows run along ``+w1``, the same rule in both views. ChArUco
+corner ``k`` of a board of ``x`` squares across is ``[k // (x − 1) + 1, k % (x − 1) + 1]``, at the board's
+own coordinates (``x_mm`` along its rows, ``y_mm`` up the board, ``z_mm = 0``): a known-target set.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .extract import ImageDots, as_8bit, dot_polarity
+
+__all__ = ["detect_board", "charuco_board", "DICTIONARIES"]
+
+DICTIONARIES = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+
+
+def charuco_board(spec) -> "cv2.aruco.CharucoBoard":
+    """The OpenCV ChArUco board of a plate spec (lengths in mm)."""
+    b = spec.board
+    name = str(b.get("dictionary", "DICT_6X6_250"))
+    if name not in DICTIONARIES:
+        raise SlmlabError(f"plates.{spec.name}.board.dictionary {name!r} is not an OpenCV ArUco dictionary; "
+                          f"use one of {', '.join(DICTIONARIES[:6])}, ...")
+    squares = b.get("squares")
+    if not (isinstance(squares, (list, tuple)) and len(squares) == 2 and all(int(v) >= 2 for v in squares)):
+        raise SlmlabError(f"plates.{spec.name}.board.squares must be [x, y], the board's squares across and down")
+    marker = float(b.get("marker_mm", 0.7 * spec.pitch_mm))
+    if not 0 < marker < spec.pitch_mm:
+        raise SlmlabError(f"plates.{spec.name}.board.marker_mm must be positive and smaller than pitch_mm")
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    board = cv2.aruco.CharucoBoard((int(squares[0]), int(squares[1])), spec.pitch_mm, marker, dictionary)
+    board.setLegacyPattern(bool(b.get("legacy", False)))
+    return board
+
+
+def _empty(note: str) -> ImageDots:
+    from .extract import _empty_table
+
+    return ImageDots(_empty_table(), 0, 0, 0, note)
+
+
+def _grid_table(corners: np.ndarray, rows: int, cols: int) -> pd.DataFrame:
+    """Corners ``(rows·cols, 2)`` in OpenCV's order, reordered by the half-turn rule (module docstring)."""
+    g = corners.reshape(rows, cols, 2)
+    if g[0, -1, 0] < g[0, 0, 0]:
+        g = g[:, ::-1]
+    if g[-1, 0, 1] < g[0, 0, 1]:
+        g = g[::-1]
+    r, c = np.meshgrid(np.arange(1, rows + 1), np.arange(1, cols + 1), indexing="ij")
+    return pd.DataFrame({"i1": c.ravel() - 1, "i2": r.ravel() - 1, "w1": g[:, :, 0].ravel(), "w2": g[:, :, 1].ravel(),
+                         "marker": False, "level": 0, "row": r.ravel(), "col": c.ravel()})
+
+
+def detect_board(img: np.ndarray, spec) -> ImageDots:
+    """Detect a board (``spec.pattern``: ``chessboard``, ``circles``, ``asymmetric-circles`` or
+    ``charuco``) in one image of any bit depth. Returns :class:`slmlab.extract.ImageDots`: ``frame``
+    ``'plate'`` for chessboards and symmetric grids (their rows and cols number them), ``'board'`` for
+    ChArUco boards and asymmetric grids (with ``x_mm, y_mm, z_mm``); ``found`` is 0 where nothing was found."""
+    img8 = as_8bit(img)
+    pattern = spec.pattern
+    if pattern in ("chessboard", "circles", "asymmetric-circles"):
+        if spec.rows is None or spec.cols is None:
+            raise SlmlabError(f"plates.{spec.name}: a {pattern} needs rows and cols (inner corners or circles)")
+        size = (spec.cols, spec.rows)
+    if pattern == "chessboard":
+        ok, corners = cv2.findChessboardCornersSB(img8, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+        if not ok:
+            ok, corners = cv2.findChessboardCorners(img8, size, flags=cv2.CALIB_CB_ADAPTIVE_THRESH
+                                                    | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            if ok:
+                crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+                corners = cv2.cornerSubPix(img8, corners, (11, 11), (-1, -1), crit)
+        if not ok:
+            return _empty(f"OpenCV found no {spec.cols} × {spec.rows} chessboard")
+        t = _grid_table(corners.reshape(-1, 2).astype(float), spec.rows, spec.cols)
+        return ImageDots(t, len(t), 0, 0, "", None, "plate", "OpenCV's chessboard detector")
+    if pattern in ("circles", "asymmetric-circles"):
+        dark = spec.dark if spec.dark is not None else dot_polarity(img)
+        params = cv2.SimpleBlobDetector_Params()
+        params.blobColor = 0 if dark else 255
+        params.filterByArea, params.minArea, params.maxArea = True, 10, 0.05 * img8.size
+        det = cv2.SimpleBlobDetector_create(params)
+        flags = cv2.CALIB_CB_SYMMETRIC_GRID if pattern == "circles" else cv2.CALIB_CB_ASYMMETRIC_GRID
+        ok, centres = cv2.findCirclesGrid(img8, size, flags=flags, blobDetector=det)
+        if not ok:
+            return _empty(f"OpenCV found no {spec.cols} × {spec.rows} {pattern} grid")
+        c = centres.reshape(-1, 2).astype(float)
+        if pattern == "circles":
+            t = _grid_table(c, spec.rows, spec.cols)
+            return ImageDots(t, len(t), 0, 0, "", None, "plate", "OpenCV's circle-grid detector", dark=dark)
+        # asymmetric: OpenCV's layout, circle (i, j) at ((2j + i % 2)·p/2, i·p/2); i is the row
+        i, j = np.divmod(np.arange(len(c)), spec.cols)
+        t = pd.DataFrame({"i1": 2 * j + i % 2, "i2": i, "w1": c[:, 0], "w2": c[:, 1], "marker": False, "level": 0,
+                          "row": i + 1, "col": 2 * j + i % 2 + 1, "x_mm": (2 * j + i % 2) * spec.pitch_mm / 2,
+                          "y_mm": -i * spec.pitch_mm / 2, "z_mm": 0.0})
+        return ImageDots(t, len(t), 0, 0, "", None, "board", "OpenCV's circle-grid detector", dark=dark)
+    if pattern == "charuco":
+        board = charuco_board(spec)
+        detector = cv2.aruco.CharucoDetector(board)
+        corners, ids, _, marker_ids = detector.detectBoard(img8)
+        if ids is None or len(ids) == 0:
+            inverted = detector.detectBoard(255 - img8)  # a board printed bright on dark
+            corners, ids = inverted[0], inverted[1]
+        if ids is None or len(ids) == 0:
+            return _empty("OpenCV found no ChArUco corner")
+        ids = ids.ravel().astype(int)
+        c = corners.reshape(-1, 2).astype(float)
+        per_row = int(board.getChessboardSize()[0]) - 1
+        xyz = np.asarray(board.getChessboardCorners(), float)[ids]
+        r, k = np.divmod(ids, per_row)
+        t = pd.DataFrame({"i1": k, "i2": r, "w1": c[:, 0], "w2": c[:, 1], "marker": False, "level": 0,
+                          "row": r + 1, "col": k + 1, "x_mm": xyz[:, 0], "y_mm": -xyz[:, 1], "z_mm": 0.0})
+        t = t.sort_values(["row", "col"]).reset_index(drop=True)
+        return ImageDots(t, len(t), 0, 0, "", None, "board", "the ChArUco board's own marker ids")
+    raise SlmlabError(f"plates.{spec.name}.pattern {pattern!r} is not one of dots, chessboard, circles, "
+                      "asymmetric-circles, charuco")

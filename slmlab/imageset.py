@@ -1,0 +1,424 @@
+"""A calibration set's images, extracted into one ``points.csv`` (DATA_FORMAT.md ``extract``).
+
+Where the images are
+    ``stage.csv`` with columns ``sequence, position, stage_x_mm, stage_y_mm, stage_z_mm, left_image,
+    right_image`` names them (paths relative to the set's folder; any format and bit depth OpenCV reads), as
+    a camera wrote them; or, for simulated sets, ``images/{sequence}_{position:03d}_{l|r}.png`` with the stage
+    positions from ``points.csv`` (re-extraction) or from a ``stage.csv`` without image columns.
+
+How each plate is found
+    From its entry in ``meta.json`` (:func:`plate_spec`): the ``pattern`` (``dots``, the default, found by
+    :mod:`slmlab.extract`; ``chessboard``, ``circles``, ``asymmetric-circles`` and ``charuco`` by OpenCV's own
+    detectors, :mod:`slmlab.boards`), the dots' polarity (``"dots": "dark" | "bright"``, else decided per
+    image), and for two-level plates their ``level_offset_mm``.
+
+One numbering for the whole set
+    The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
+    ``cols`` are given and which is wholly in view is numbered by its size; a plate with markers by them (an
+    L of donuts; a square and a triangle; a frame around the origin dot: :func:`slmlab.extract.anchor_image`);
+    a plate larger than the field whose markers an image does not show is **tracked** from the nearest
+    anchored image of the same view (a stack moves the plate little from one position to the next). A plate
+    anchored by an origin (markers) has no size: its dots are numbered from 1 over the whole set, and their
+    positions in the plate's own frame are written as ``x_mm, y_mm, z_mm`` (a known-target set).
+
+Every error a user can cause (a missing or unreadable image, images of different sizes, an image without
+dots, a plate whose numbering cannot be anchored) is a :class:`slmlab.SlmlabError` naming the file and the
+remedy, raised before anything is written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .extract import IMAGE_NAME, ImageDots, PlateLattice, choose_method, extract_image, read_image
+from .io import PATTERNS
+
+__all__ = ["PATTERNS", "PlateSpec", "plate_spec", "ImagePair", "image_pairs", "extract_set", "STAGE_FILE"]
+
+STAGE_FILE = "stage.csv"
+STAGE = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
+
+
+@dataclass(frozen=True)
+class PlateSpec:
+    """What the extractor needs to know about one plate (from ``meta.json``; :func:`plate_spec`).
+
+    Attributes
+    ----------
+    name
+        ``'grid'`` or ``'moving'``.
+    rows, cols
+        the plate's size in dots (corners for boards), or ``None`` for a plate larger than the field.
+    pitch_mm
+        dot spacing along a row [mm] (square size for boards).
+    dark
+        dark dots on a bright plate, bright dots on a dark one, or ``None``: decided from each image.
+    pattern
+        one of :data:`PATTERNS`.
+    levels
+        1, or 2 for a two-level plate (rows alternating between two depths, offset by half a pitch).
+    level_offset_mm
+        ``z`` of the second level in the plate's frame [mm] (``None`` if not given).
+    marker_origin
+        ``[row, col]`` of the corner donut of an L of donut markers.
+    board
+        the board's description for ``charuco`` (squares, square and marker size, dictionary, legacy layout).
+    """
+
+    name: str
+    rows: int | None
+    cols: int | None
+    pitch_mm: float
+    dark: bool | None = None
+    pattern: str = "dots"
+    levels: int = 1
+    level_offset_mm: float | None = None
+    marker_origin: tuple[int, int] = (2, 2)
+    board: dict = field(default_factory=dict)
+
+    @property
+    def unit_mm(self) -> float:
+        """The spacing of the numbering [mm]: the pitch, or half of it on a two-level plate."""
+        return self.pitch_mm / 2 if self.levels == 2 else self.pitch_mm
+
+
+def plate_spec(meta: dict, name: str) -> PlateSpec:
+    """The :class:`PlateSpec` of plate ``name`` (``'grid'`` or ``'moving'``) of a validated ``meta.json``."""
+    p = meta["plates"][name]
+    dots = p.get("dots")
+    levels = int(p.get("levels", 2 if p.get("level_offset_mm") is not None else 1))
+    origin = p.get("marker_origin", [2, 2])
+    return PlateSpec(name, None if p.get("rows") is None else int(p["rows"]),
+                     None if p.get("cols") is None else int(p["cols"]), float(p["pitch_mm"]),
+                     None if dots is None else dots == "dark", p.get("pattern", "dots"), levels,
+                     None if p.get("level_offset_mm") is None else float(p["level_offset_mm"]),
+                     (int(origin[0]), int(origin[1])), dict(p.get("board", {})))
+
+
+@dataclass(frozen=True)
+class ImagePair:
+    """One stage position of a sequence and its two images (``None`` where a view has no image)."""
+
+    sequence: str
+    position: int
+    stage_mm: tuple[float, float, float]
+    left: Path | None
+    right: Path | None
+    source: str  # where the pair was named (for messages): 'stage.csv row k' or 'images/'
+
+
+# ------------------------------------------------------------------------------------------- the set's images
+def _stage_table(path: Path) -> pd.DataFrame:
+    """``stage.csv``, validated like ``points.csv`` (every bad cell named by row and column)."""
+    from .io import _numeric, _read_csv_text, _require_columns
+
+    df = _read_csv_text(path, STAGE_FILE)
+    _require_columns(df, ["sequence", "position", *STAGE], path, STAGE_FILE)
+    out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
+    if (out["sequence"] == "").any():
+        k = int(np.flatnonzero(out["sequence"].to_numpy() == "")[0])
+        raise SlmlabError(f"row {k + 2}, column sequence: empty label; use grid, X, Y, Z or another name", path)
+    out["position"] = _numeric(df, "position", path, allow_empty=False, integer=True, minimum=1).astype(int)
+    for c in STAGE:
+        out[c] = _numeric(df, c, path, allow_empty=False)
+    for c in ("left_image", "right_image"):
+        if c in df.columns:
+            out[c] = df[c].astype(str).str.strip()
+    dup = out.duplicated(["sequence", "position"], keep="first")
+    if dup.any():
+        k = int(np.flatnonzero(dup.to_numpy())[0])
+        raise SlmlabError(f"row {k + 2}: sequence {out['sequence'][k]}, position {out['position'][k]} appears twice; "
+                          "give each stage position one row", path)
+    return out
+
+
+def image_pairs(set_dir: str | Path) -> list[ImagePair]:
+    """The stereo pairs of a set: from ``stage.csv``'s ``left_image, right_image`` columns if it has them,
+    else from ``images/`` (simulated sets' names) with the stage positions of ``points.csv`` or
+    ``stage.csv``."""
+    set_dir = Path(set_dir)
+    stage_file = set_dir / STAGE_FILE
+    stage = _stage_table(stage_file) if stage_file.exists() else None
+    if stage is not None and {"left_image", "right_image"} & set(stage.columns):
+        pairs = []
+        for k, r in enumerate(stage.itertuples(index=False)):
+            paths = []
+            for col in ("left_image", "right_image"):
+                name = getattr(r, col, "")
+                name = "" if name is None or str(name).lower() in ("", "nan", "none") else str(name)
+                paths.append(set_dir / name if name else None)
+            if paths == [None, None]:
+                raise SlmlabError(f"row {k + 2}: no left_image or right_image; name at least one image", stage_file)
+            pairs.append(ImagePair(r.sequence, int(r.position), (r.stage_x_mm, r.stage_y_mm, r.stage_z_mm),
+                                   paths[0], paths[1], f"{STAGE_FILE} row {k + 2}"))
+        return pairs
+    images = set_dir / "images"
+    if not images.is_dir():
+        raise SlmlabError("has no images: give stage.csv with left_image and right_image columns (images as a "
+                          "camera wrote them), or an images/ folder of {sequence}_{position:03d}_{l|r}.png "
+                          "('simulate --images' renders one)", set_dir)
+    files = sorted(p for p in images.iterdir() if IMAGE_NAME.match(p.name))
+    if not files:
+        raise SlmlabError("images/ holds no file named {sequence}_{position:03d}_{l|r}.png; or name the images "
+                          "in stage.csv (left_image, right_image)", images)
+    if (set_dir / "points.csv").exists():
+        from .io import read_set
+
+        stage = read_set(set_dir).points[["sequence", "position", *STAGE]]
+        where = set_dir / "points.csv"
+    elif stage is not None:
+        where = stage_file
+    else:
+        raise SlmlabError("needs the stage positions: a points.csv to re-extract, or stage.csv with sequence, "
+                          "position, stage_x_mm, stage_y_mm, stage_z_mm", set_dir)
+    stage = stage.drop_duplicates(["sequence", "position"]).set_index(["sequence", "position"])
+    found: dict[tuple[str, int], dict[str, Path]] = {}
+    for f in files:
+        m = IMAGE_NAME.match(f.name)
+        found.setdefault((m["sequence"], int(m["position"])), {})[m["side"]] = f
+    pairs = []
+    for (seq, pos), sides in sorted(found.items()):
+        if (seq, pos) not in stage.index:
+            raise SlmlabError(f"no stage position for sequence {seq}, position {pos} (image {next(iter(sides.values())).name})",
+                              where)
+        st = stage.loc[(seq, pos)]
+        pairs.append(ImagePair(seq, pos, tuple(float(st[c]) for c in STAGE), sides.get("l"), sides.get("r"), "images/"))
+    return pairs
+
+
+# ------------------------------------------------------------------------------------------- extraction
+@dataclass
+class _Found:
+    pair: ImagePair
+    side: str
+    path: Path
+    dots: ImageDots
+    spec: PlateSpec
+
+
+def _integer_map(table: pd.DataFrame, src: tuple[str, str], dst: tuple[str, str]) -> np.ndarray | None:
+    """The integer affine map ``(2, 3)`` taking columns ``src`` to ``dst`` on a table where it is exact."""
+    if len(table) < 3:
+        return None
+    a = np.column_stack([table[src[0]], table[src[1]], np.ones(len(table))]).astype(float)
+    b = table[list(dst)].to_numpy(float)
+    if np.linalg.matrix_rank(a) < 3:  # collinear dots: no unique map
+        return None
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    m = np.rint(sol.T)
+    return m if np.allclose(a @ m.T, b) else None
+
+
+def _track(target: _Found, anchored: list[_Found]) -> tuple[np.ndarray, str] | None:
+    """Index the dots of an unanchored image from the nearest anchored image of the same view and plate: the
+    anchored image's lattice predicts where its nodes are; each dot of this image takes the nearest node
+    within a third of a step, and the most common index shift between the two lattices is the one."""
+    t = target.dots
+    if t.lattice is None or len(t.table) < 4:
+        return None
+    cands = [f for f in anchored if f.side == target.side and f.spec.name == target.spec.name]
+    cands.sort(key=lambda f: (f.pair.sequence != target.pair.sequence, abs(f.pair.position - target.pair.position)))
+    pts = t.table[["w1", "w2"]].to_numpy()
+    for f in cands[:4]:
+        pl: PlateLattice = f.dots.lattice
+        lo1, hi1 = pl.i1.min() - 3, pl.i1.max() + 4
+        lo2, hi2 = pl.i2.min() - 3, pl.i2.max() + 4
+        g1, g2 = np.meshgrid(np.arange(lo1, hi1), np.arange(lo2, hi2), indexing="ij")
+        g1, g2 = g1.ravel(), g2.ravel()
+        if pl.two_level:
+            keep = (g1 + g2) % 2 == 0
+            g1, g2 = g1[keep], g2[keep]
+        nodes = pl.predict(g1, g2)
+        step = np.median(np.hypot(*np.diff(pl.predict(np.array([0, 1]), np.array([0, 0])), axis=0).T))
+        d = np.hypot(pts[:, None, 0] - nodes[None, :, 0], pts[:, None, 1] - nodes[None, :, 1])
+        k = np.argmin(d, axis=1)
+        close = d[np.arange(len(pts)), k] < step / 3
+        if close.sum() < 4:
+            continue
+        shift = np.stack([g1[k] - t.table["i1"].to_numpy(), g2[k] - t.table["i2"].to_numpy()], axis=1)[close]
+        vals, counts = np.unique(shift, axis=0, return_counts=True)
+        best = vals[np.argmax(counts)]
+        if counts.max() < 0.6 * close.sum():
+            continue
+        return best, f"{f.path.name}"
+    return None
+
+
+def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | None = None
+                ) -> tuple[pd.DataFrame, list[str]]:
+    """Extract every image of a set into the rows of ``points.csv`` (module docstring).
+
+    ``method``: the centre estimator of dot plates (``'moments'``, ``'ellipse'``, or ``'auto'``: chosen per
+    plate and view on its first image by :func:`slmlab.extract.choose_method`, and named in the notes).
+
+    Returns the points table (``POINT_COLUMNS``; plus ``x_mm, y_mm, z_mm`` for plates anchored by markers and
+    ``level`` for two-level plates) and notes: how each plate's numbering was anchored, images with spurious
+    blobs, views without an image. Raises :class:`SlmlabError` before anything is written.
+    """
+    from tqdm import tqdm
+
+    from .boards import detect_board
+    from .io import IMAGE_COLUMNS, POINT_COLUMNS, _read_meta
+
+    set_dir = Path(set_dir)
+    if not set_dir.is_dir():
+        raise SlmlabError("calibration set folder not found; give the folder that holds meta.json and the images",
+                          set_dir)
+    meta = _read_meta(set_dir / "meta.json")
+    pairs = image_pairs(set_dir)
+    specs = {}
+    for pr in pairs:
+        name = "grid" if pr.sequence == "grid" else "moving"
+        if name not in meta["plates"]:
+            raise SlmlabError(f"sequence {pr.sequence} needs plates.{name} in meta.json", set_dir / "meta.json")
+        specs[name] = plate_spec(meta, name)
+    notes: list[str] = []
+    size = None
+    found: list[_Found] = []
+    todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
+    for pr in pairs:
+        for side, path in (("l", pr.left), ("r", pr.right)):
+            if path is None:
+                notes.append(f"{pr.sequence} position {pr.position}: no {'left' if side == 'l' else 'right'} image")
+    chosen: dict[tuple[str, str], str] = {}
+    for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
+        img = read_image(path)
+        if size is None:
+            size = img.shape
+            want = tuple(meta["image_size_px"])
+            if (img.shape[1], img.shape[0]) != want:
+                raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but meta.json's image_size_px is "
+                                  f"{want[0]} × {want[1]}; correct image_size_px", path)
+        elif img.shape != size:
+            raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are {size[1]} × {size[0]} px; "
+                              "all images of a set must have one size", path)
+        spec = specs["grid" if pr.sequence == "grid" else "moving"]
+        if spec.pattern == "dots":
+            kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2)
+            m = method
+            if method == "auto":
+                if (spec.name, side) not in chosen:
+                    chosen[(spec.name, side)], res = choose_method(img, spec.rows, spec.cols, **kw)
+                    notes.append(f"plate {spec.name}, {'left' if side == 'l' else 'right'} view: centres by "
+                                 f"{chosen[(spec.name, side)]} (lattice residual {res['ellipse']:.3f} px by ellipse, "
+                                 f"{res['moments']:.3f} px by moments, on {path.name})")
+                m = chosen[(spec.name, side)]
+            dots = extract_image(img, spec.rows, spec.cols, method=m, **kw)
+        else:
+            dots = detect_board(img, spec)
+        if dots.found == 0:
+            what = "dots" if spec.pattern == "dots" else f"{spec.pattern} corners"
+            hint = ("check plates.{0}.dots (dark or bright) in meta.json, the focus and exposure"
+                    if spec.pattern == "dots" else "check plates.{0} (pattern, size, board) in meta.json and the focus")
+            raise SlmlabError(f"no {what} found ({pr.source}); {hint.format(spec.name)}, or leave the image out", path)
+        if dots.spurious:
+            notes.append(f"{path.name}: {dots.spurious} blob(s) off the lattice dropped")
+        found.append(_Found(pr, side, path, dots, spec))
+
+    # anchor: by the image itself, else tracked from an anchored neighbour of the same view
+    anchored = [f for f in found if f.dots.frame is not None]
+    how: dict[str, dict[str, int]] = {}
+    for f in found:
+        if f.dots.frame is not None:
+            how.setdefault(f.spec.name, {}).setdefault(f.dots.how, 0)
+            how[f.spec.name][f.dots.how] += 1
+            continue
+        tracked = _track(f, anchored) if f.spec.pattern == "dots" else None
+        if tracked is None:
+            raise SlmlabError(f"cannot number the dots of this image ({f.dots.note or 'no lattice'}; {f.pair.source}): "
+                              "give the plate's rows and cols in meta.json if the whole plate is in view, use a plate "
+                              "with markers, or image it beside an image that shows them", f.path)
+        shift, source = tracked
+        ref = next(g for g in anchored if g.path.name == source)
+        t = f.dots.table.copy()
+        t["i1"] += shift[0]
+        t["i2"] += shift[1]
+        rt = ref.dots.table
+        cols = ("xu", "yu") if ref.dots.frame == "origin" else ("row", "col")
+        m = _integer_map(rt, ("i1", "i2"), cols)
+        if m is None:
+            raise SlmlabError(f"cannot number the dots of this image: its neighbour {source} has too few dots to "
+                              "track from; use a plate with markers", f.path)
+        mapped = np.column_stack([t["i1"], t["i2"], np.ones(len(t))]) @ m.T
+        t[cols[0]], t[cols[1]] = mapped[:, 0].astype(int), mapped[:, 1].astype(int)
+        if ref.dots.frame == "origin":
+            t["row"], t["col"] = -t["yu"], -t["xu"]
+            if f.spec.levels == 2:
+                t["level"] = (t["xu"] % 2).astype(int)
+        f.dots.table, f.dots.frame, f.dots.how = t, ref.dots.frame, f"tracked from {source}"
+        how.setdefault(f.spec.name, {}).setdefault("tracked through the stack from a neighbouring image", 0)
+        how[f.spec.name]["tracked through the stack from a neighbouring image"] += 1
+    for name, kinds in how.items():
+        total = sum(kinds.values())
+        notes.append(f"plate {name}: numbering anchored in {total} image(s) by "
+                     + "; ".join(f"{k} ({v})" for k, v in kinds.items()))
+
+    # one numbering for the set (origin-anchored plates), then one row per (sequence, position, dot)
+    known_target = False
+    for name, spec in specs.items():
+        mine = [f for f in found if f.spec.name == name]
+        frames = {f.dots.frame for f in mine}
+        if len(frames) > 1:
+            raise SlmlabError(f"plate {name}: some images are numbered by the plate's size and others by markers; "
+                              "give rows and cols for a plate wholly in view, or leave them out", set_dir / "meta.json")
+        if frames == {"origin"}:
+            known_target = True
+            xu = np.concatenate([f.dots.table["xu"].to_numpy() for f in mine])
+            yu = np.concatenate([f.dots.table["yu"].to_numpy() for f in mine])
+            x_max, y_max = int(xu.max()), int(yu.max())
+            for f in mine:
+                t = f.dots.table
+                t["col"], t["row"] = x_max - t["xu"] + 1, y_max - t["yu"] + 1
+                t["x_mm"], t["y_mm"] = t["xu"] * spec.unit_mm, t["yu"] * spec.unit_mm
+                if spec.levels == 2:
+                    offset = np.nan if spec.level_offset_mm is None else spec.level_offset_mm
+                    t["z_mm"] = np.where(t["level"] == 1, offset, 0.0)
+                else:
+                    t["z_mm"] = 0.0
+            if spec.levels == 2 and spec.level_offset_mm is None:
+                notes.append(f"plate {name}: two levels but no level_offset_mm in meta.json; the second level's "
+                             "dots have no z_mm and are left out of calibrations until it is given")
+        elif frames == {"board"}:
+            known_target = True
+    extra = ["x_mm", "y_mm", "z_mm"] if known_target else []
+    levels = any(s.levels == 2 for s in specs.values())
+    frames_out = []
+    by_pair: dict[tuple[str, int], dict[str, _Found]] = {}
+    for f in found:
+        by_pair.setdefault((f.pair.sequence, f.pair.position), {})[f.side] = f
+    for pr in pairs:
+        sides = by_pair.get((pr.sequence, pr.position), {})
+        spec = specs["grid" if pr.sequence == "grid" else "moving"]
+        merged = None
+        for side in "lr":
+            if side not in sides:
+                continue
+            t = sides[side].dots.table
+            keep = ["row", "col", "w1", "w2"] + [c for c in (*extra, "level") if c in t.columns]
+            t = t[keep].rename(columns={"w1": f"w{side}1", "w2": f"w{side}2"})
+            merged = t if merged is None else merged.merge(t, on=[c for c in keep if c not in ("w1", "w2")],
+                                                           how="outer")
+        if merged is None:
+            continue
+        for c in IMAGE_COLUMNS:
+            if c not in merged.columns:
+                merged[c] = np.nan
+        if spec.rows is not None and spec.cols is not None and spec.pattern == "dots":
+            merged = merged[merged["row"].between(1, spec.rows) & merged["col"].between(1, spec.cols)]
+        merged.insert(0, "sequence", pr.sequence)
+        merged.insert(1, "position", pr.position)
+        for c, v in zip(STAGE, pr.stage_mm):
+            merged[c] = float(v)
+        cols = POINT_COLUMNS + [c for c in extra if c in merged.columns] + (["level"] if levels and "level" in merged.columns else [])
+        frames_out.append(merged.sort_values(["row", "col"], kind="stable")[cols])
+    if not frames_out:
+        raise SlmlabError("no dots were extracted from any image", set_dir)
+    points = pd.concat(frames_out, ignore_index=True)
+    points = points[points[IMAGE_COLUMNS].notna().any(axis=1)].reset_index(drop=True)
+    points[["row", "col"]] = points[["row", "col"]].astype(int)
+    return points, notes
