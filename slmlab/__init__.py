@@ -21,7 +21,7 @@ from .models import Model, available_models, calibrate, default_model_name, load
 from .simulate import (PAPER_TESTS, PRESETS, Session, paper_test, preset, simulate_set,  # noqa: E402
                        validation_session)
 from .paths import SHARED_DIR, figures_dir, notebook_size, paper_reference, savefig, savetable  # noqa: E402
-from . import direct, paper_models, pinhole  # noqa: E402,F401  (registers the models)
+from . import direct, paper_models, pinhole, selection, soloff  # noqa: E402,F401  (registers the models)
 from .evaluation import evaluate  # noqa: E402
 
 __all__ = [

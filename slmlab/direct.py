@@ -63,7 +63,7 @@ from .io import CalibrationSet, IMAGE_COLUMNS
 from .linefit import point_keys
 from .models import Model, register
 
-__all__ = ["features", "fit_direct", "DirectModel", "plate_xy", "LEGACY_FRAME"]
+__all__ = ["features", "fit_direct", "DirectModel", "plate_xy", "world_positions", "LEGACY_FRAME"]
 
 #: the normalisation of model files written before the frame was fitted: centre, scale, disparity direction
 LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
@@ -72,27 +72,36 @@ RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal ma
 STAGE = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
 
 
-def _exponents(degree: int) -> list[tuple[int, int, int]]:
+def _exponents(degree: int, nvar: int = 3) -> list[tuple[int, ...]]:
     out = []
     for d in range(1, degree + 1):
-        for combo in combinations_with_replacement(range(3), d):
-            out.append(tuple(combo.count(k) for k in range(3)))
+        for combo in combinations_with_replacement(range(nvar), d):
+            out.append(tuple(combo.count(k) for k in range(nvar)))
     return out
 
 
-def _raw_variables(w: np.ndarray, direction) -> np.ndarray:
+def _raw_variables(w: np.ndarray, direction, nvar: int = 3) -> np.ndarray:
+    """``(v1, v2, D)`` [px], and with ``nvar = 4`` also ``D⊥``: the disparity's component across ``u``."""
     w = np.asarray(w, float)
     u = np.asarray(direction, float)
-    return np.column_stack([(w[:, 0] + w[:, 2]) / 2, (w[:, 1] + w[:, 3]) / 2,
-                            u[0] * (w[:, 2] - w[:, 0]) + u[1] * (w[:, 3] - w[:, 1])])
+    d1, d2 = w[:, 2] - w[:, 0], w[:, 3] - w[:, 1]
+    cols = [(w[:, 0] + w[:, 2]) / 2, (w[:, 1] + w[:, 3]) / 2, u[0] * d1 + u[1] * d2]
+    if nvar == 4:
+        cols.append(-u[1] * d1 + u[0] * d2)
+    return np.column_stack(cols)
+
+
+def _nvar(frame: dict) -> int:
+    return int(frame.get("variables", 3))
 
 
 def _variables(w: np.ndarray, frame: dict) -> np.ndarray:
-    v = _raw_variables(w, frame["direction"])
+    v = _raw_variables(w, frame["direction"], _nvar(frame))
     return (v - np.asarray(frame["centre"])) / np.asarray(frame["scale"])
 
 
-def fit_frame(w: np.ndarray, key: np.ndarray | None = None, use: np.ndarray | None = None) -> dict:
+def fit_frame(w: np.ndarray, key: np.ndarray | None = None, use: np.ndarray | None = None, *,
+              variables: int = 3, depth: np.ndarray | None = None) -> dict:
     """The normalisation of a calibration set's image coordinates ``(n, 4)`` [px]: the disparity direction
     ``u``, and the centre and half-range [px] of ``(v1, v2, D)``, so that the set spans ``[−1, 1]`` in each.
 
@@ -101,20 +110,25 @@ def fit_frame(w: np.ndarray, key: np.ndarray | None = None, use: np.ndarray | No
     with its largest component positive: the direction depth moves the disparity in. Across the field the disparity also varies, and for
     an oblique camera far more than with depth, so the spread of the disparities themselves would mislead."""
     w = np.asarray(w, float)
-    sub = w if use is None or not np.any(use) else w[use]
-    d = sub[:, 2:4] - sub[:, 0:2]
-    if key is None:
-        d = d - d.mean(axis=0)
+    if depth is not None:  # known depths (a known target): the direction of the disparity's regression on depth
+        d = w[:, 2:4] - w[:, 0:2]
+        u = (d - d.mean(axis=0)).T @ (np.asarray(depth, float) - np.mean(depth))
     else:
-        _, inv = np.unique(key if use is None or not np.any(use) else key[use], return_inverse=True)
-        d = d - _means(d, inv.ravel(), inv.max() + 1, np.ones(len(d)))[inv.ravel()]
-    _, vec = np.linalg.eigh(d.T @ d)
-    u = vec[:, -1]
+        sub = w if use is None or not np.any(use) else w[use]
+        d = sub[:, 2:4] - sub[:, 0:2]
+        if key is None:
+            d = d - d.mean(axis=0)
+        else:
+            _, inv = np.unique(key if use is None or not np.any(use) else key[use], return_inverse=True)
+            d = d - _means(d, inv.ravel(), inv.max() + 1, np.ones(len(d)))[inv.ravel()]
+        _, vec = np.linalg.eigh(d.T @ d)
+        u = vec[:, -1]
+    u = u / max(np.linalg.norm(u), 1e-300)
     u = u if u[np.argmax(np.abs(u))] > 0 else -u
-    v = _raw_variables(w, u)
+    v = _raw_variables(w, u, variables)
     lo, hi = v.min(axis=0), v.max(axis=0)
     return {"centre": ((lo + hi) / 2).tolist(), "scale": np.maximum((hi - lo) / 2, 1e-6).tolist(),
-            "direction": u.tolist()}
+            "direction": u.tolist(), "variables": int(variables)}
 
 
 def features(w: np.ndarray, degree: int, frame: dict | None = None) -> np.ndarray:
@@ -126,9 +140,9 @@ def features(w: np.ndarray, degree: int, frame: dict | None = None) -> np.ndarra
 
 
 def _features_v(v: np.ndarray, degree: int) -> np.ndarray:
-    """:func:`features` of normalised variables ``(n, 3)``."""
-    n = len(v)
-    powers = np.empty((3, degree + 1, n))
+    """:func:`features` of normalised variables ``(n, 3)`` or ``(n, 4)``."""
+    n, nvar = v.shape
+    powers = np.empty((nvar, degree + 1, n))
     powers[:, 0] = 1.0
     for k in range(1, degree + 1):
         np.multiply(powers[:, k - 1], v.T, out=powers[:, k])
@@ -137,12 +151,14 @@ def _features_v(v: np.ndarray, degree: int) -> np.ndarray:
 
 def _features_t(powers: np.ndarray, degree: int) -> np.ndarray:
     """Monomial-major features ``(m, n)``, each row written contiguously, from power tables."""
-    exps = _exponents(degree)
+    nvar = powers.shape[0]
+    exps = _exponents(degree, nvar)
     out = np.empty((len(exps), powers.shape[2]))
-    for row, (a, b, c) in enumerate(exps):
-        np.multiply(powers[0, a], powers[1, b], out=out[row])
-        if c:
-            out[row] *= powers[2, c]
+    for row, e in enumerate(exps):
+        np.multiply(powers[0, e[0]], powers[1, e[1]], out=out[row])
+        for k in range(2, nvar):
+            if e[k]:
+                out[row] *= powers[k, e[k]]
     return out
 
 
@@ -155,30 +171,68 @@ def plate_xy(row, col, plate: dict) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------- rows
-def _rows(cal: CalibrationSet, mode: str):
-    pts = cal.points[cal.points["sequence"].isin(SEQUENCES)]
+def world_positions(cal: CalibrationSet, mode: str = "auto"):
+    """The rows a model calibrates on and where their dots are in the world.
+
+    Returns ``(rows, world (n, 3) [mm], mode)``:
+
+    ``"target"``
+        a known-target set (``x_mm, y_mm, z_mm``): world = commanded stage position + the dot's place on its
+        target (a stepped target or a two-level plate in one pose needs no stage motion; with stage motion the
+        two add). Rows whose target position is not known are left out.
+    ``"zstack"``
+        only a Z sequence, of a plate with rows, cols and pitch: world = stage + the plate's lattice
+        (:func:`plate_xy`).
+    ``"moves"``
+        stage moves of a plate whose place on the stage is unknown: world = the commanded stage position, up
+        to one unknown offset per dot and sequence.
+
+    Rows need all four image coordinates; the static ``grid`` pair is not used (it is another plate).
+    """
+    pts = cal.points[cal.points["sequence"] != "grid"]
     pts = pts[pts[IMAGE_COLUMNS].notna().all(axis=1)]
+    if mode not in ("auto", "moves", "zstack", "target"):
+        raise SlmlabError(f"unknown mode {mode!r}; use 'auto', 'moves', 'zstack' or 'target'")
+    if cal.known_target and mode in ("auto", "target"):
+        world = cal.world(pts)
+        keep = np.isfinite(world).all(axis=1)
+        pts, world = pts[keep], world[keep]
+        if len(pts) == 0:
+            raise SlmlabError("no dot has both image coordinates and a known position on its target (x_mm, y_mm, "
+                              "z_mm); for a two-level plate give plates.moving.level_offset_mm", cal.path)
+        return pts, world, "target"
+    if mode == "target":
+        raise SlmlabError("mode 'target' needs a known-target set (columns x_mm, y_mm, z_mm)", cal.path)
+    pts = pts[pts["sequence"].isin(SEQUENCES)]
     pts = pts[pts.groupby("sequence")["position"].transform("nunique") >= 2]
     if len(pts) == 0:
-        raise SlmlabError("the direct model needs sequences with stage motion (X, Y, Z or V) seen in both views",
-                          cal.path)
+        raise SlmlabError("needs sequences with stage motion (X, Y, Z or V) seen in both views, or a known target "
+                          "(x_mm, y_mm, z_mm)", cal.path)
     moved = pts.groupby("sequence")[STAGE].agg(lambda s: float(s.max() - s.min()))
     lateral = bool((moved[["stage_x_mm", "stage_y_mm"]].to_numpy() > 0).any())
     if mode == "auto":
         mode = "moves" if lateral else "zstack"
-    if mode not in ("moves", "zstack"):
-        raise SlmlabError(f"unknown mode {mode!r} of the direct model; use 'auto', 'moves' or 'zstack'")
     if mode == "moves" and not lateral:
         raise SlmlabError("mode 'moves' needs stage moves in X or Y; a set with a Z sequence only calibrates "
                           "in mode 'zstack' (X, Y from the plate's pitch)", cal.path)
+    world = pts[STAGE].to_numpy(float)
+    if mode == "zstack":
+        plate = cal.plate("Z")
+        if plate.get("rows") is None:
+            raise SlmlabError("a Z stack of a plate without rows and cols needs x_mm, y_mm, z_mm columns (extract the "
+                              "set with 'python -m slmlab extract')", cal.path)
+        world = world + np.column_stack([plate_xy(pts["row"], pts["col"], plate), np.zeros(len(pts))])
+    return pts, world, mode
+
+
+def _rows(cal: CalibrationSet, mode: str):
+    pts, target, mode = world_positions(cal, mode)
     codes = {s: k for k, s in enumerate(sorted(pts["sequence"].unique()))}
     seq_code = pts["sequence"].map(codes).to_numpy()
     positions = seq_code * 1_000_000 + pts["position"].to_numpy()
-    target = pts[STAGE].to_numpy(float)
     if mode == "moves":
         groups = point_keys(pts["row"], pts["col"]) * 16 + seq_code
-    else:  # one group: X, Y from the plate's lattice, Z from the stage; a common constant only
-        target = target + np.column_stack([plate_xy(pts["row"], pts["col"], cal.plate("Z")), np.zeros(len(pts))])
+    else:  # one group: the world position is known up to one common constant
         groups = np.zeros(len(pts), np.int64)
     return pts, groups, positions, target, mode
 
@@ -289,26 +343,32 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             "sigma_u_mm": np.sqrt(s_u2), "cov": cov}
 
 
-def _held_out_error(phi, target, groups, positions, held, variance, precision) -> np.ndarray:
-    """RMS [mm] per coordinate on held-out positions of a fit on the others, net of the stage's own error
-    at each held-out position (its variance ``σu²`` estimated by the fit)."""
-    f = _solve(phi[~held], target[~held], groups[~held], positions[~held], variance=variance,
-               precision=precision[~held])
-    lookup = dict(zip(f["labels"].tolist(), range(len(f["labels"]))))
-    idx = np.array([lookup.get(g, -1) for g in groups[held].tolist()])
-    ok = idx >= 0
-    e = phi[held][ok] @ f["coef"] + f["offsets"][idx[ok]] - target[held][ok]
-    n = np.linalg.norm(e / f["sigma_e_mm"], axis=1)
-    inlier = n <= np.median(n) + 5 * 1.4826 * np.median(np.abs(n - np.median(n)))  # robust to outliers
-    e, pos = e[inlier], positions[held][ok][inlier]
-    _, pinv = np.unique(pos, return_inverse=True)
-    pinv = pinv.ravel()
-    ones = np.ones(len(e))
-    pm = _means(e, pinv, pinv.max() + 1, ones)
-    n_t = np.bincount(pinv)
-    within = np.mean((e - pm[pinv]) ** 2, axis=0)
-    between = np.mean(pm ** 2, axis=0) - f["sigma_u_mm"] ** 2 - f["sigma_e_mm"] ** 2 * np.mean(1 / n_t)
-    return np.sqrt(within + np.maximum(between, 0.0))
+def _held_out_error(phi, target, groups, positions, folds, variance, precision, mask=None) -> np.ndarray:
+    """RMS [mm] per coordinate on the test rows of each ``(train, test)`` fold of a fit on its training rows,
+    net of the stage's own error at each held-out position (its variance ``σu²`` estimated by the fit), pooled
+    over the folds."""
+    sq, count = np.zeros(3), 0
+    for train, test in folds:
+        f = _solve(phi[train], target[train], groups[train], positions[train], variance=variance,
+                   precision=precision[train], mask=mask)
+        lookup = dict(zip(f["labels"].tolist(), range(len(f["labels"]))))
+        idx = np.array([lookup.get(g, -1) for g in groups[test].tolist()])
+        ok = idx >= 0
+        if not ok.any():
+            continue
+        e = phi[test][ok] @ f["coef"] + f["offsets"][idx[ok]] - target[test][ok]
+        n = np.linalg.norm(e / f["sigma_e_mm"], axis=1)
+        inlier = n <= np.median(n) + 5 * 1.4826 * np.median(np.abs(n - np.median(n)))  # robust to outliers
+        e, pos = e[inlier], positions[test][ok][inlier]
+        _, pinv = np.unique(pos, return_inverse=True)
+        pinv = pinv.ravel()
+        pm = _means(e, pinv, pinv.max() + 1, np.ones(len(e)))
+        n_t = np.bincount(pinv)
+        within = np.mean((e - pm[pinv]) ** 2, axis=0)
+        between = np.mean(pm ** 2, axis=0) - f["sigma_u_mm"] ** 2 - f["sigma_e_mm"] ** 2 * np.mean(1 / n_t)
+        sq += len(e) * (within + np.maximum(between, 0.0))
+        count += len(e)
+    return np.sqrt(sq / max(count, 1))
 
 
 def _noise_variance(noise_poly: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -376,49 +436,100 @@ def plate_length_reference(cal: CalibrationSet, frame: dict, degree: int, coef, 
             "xy_cosine": float(cosine), "dots": int(inside.sum())}
 
 
+def _monomial_mask(degrees, nvar: int, depth_cap: int) -> np.ndarray:
+    """``(m, 3)`` which monomials each coordinate uses: total degree within its own, and degree in the depth
+    variable ``D`` below ``depth_cap`` (the number of distinct depths the set has)."""
+    return np.array([[sum(e) <= dk and e[2] < depth_cap for dk in degrees] for e in _exponents(max(degrees), nvar)])
+
+
+def _choose_degrees(w, frame, target, groups, positions, folds, variance, precision, depth_cap, max_degree, sampled,
+                    one_se: bool = True):
+    """Held-out RMS [mm] per degree and coordinate on ``folds`` (``(train, test)`` row masks), and the degree
+    per coordinate: by the one-standard-error rule (the lowest degree within one standard error of the best)
+    where the held-out rows lie on the calibration's own axes (``one_se``), else the best."""
+    nvar = _nvar(frame)
+    cv = {}
+    n_train = min(tr.sum() for tr, _ in folds)
+    for d in range(1, max_degree + 1):
+        phi = features(w, d, frame)
+        if d > 1 and (phi.shape[1] + 1 >= n_train or d >= sampled):
+            break
+        mask = _monomial_mask([d] * 3, nvar, depth_cap)
+        cv[d] = _held_out_error(phi, target, groups, positions, folds, variance, precision, mask)
+    # Held-out positions on the calibration's own axes cannot see the rest of the volume, where a needlessly
+    # high degree extrapolates badly: hence the rule. Crossed folds (new depths and new dots) do see it.
+    se = 1 / np.sqrt(2 * sum(te.sum() for _, te in folds)) if one_se else 0.0
+    degrees = [min(d for d in cv if cv[d][k] <= min(v[k] for v in cv.values()) * (1 + se)) for k in range(3)]
+    return degrees, cv
+
+
 def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int = 5, *, mode: str = "auto",
-               length_reference: str = "stage"):
-    """Fit the direct model; ``degree=None`` chooses it per coordinate on held-out positions. Returns a dict
-    with ``coef``, ``const``, ``frame``, ``degrees``, ``cv`` (held-out RMS per degree), ``weights``,
-    ``sigma_mm`` (scatter of one point), ``stage_error_mm`` (per position), ``noise_poly``, ``cov``,
-    ``suspects`` and ``mode``."""
+               length_reference: str = "stage", variables="auto"):
+    """Fit the direct model; ``degree=None`` chooses it per coordinate on held-out positions;
+    ``variables``: 3 (``v1, v2, D``), 4 (and ``D⊥``), or ``"auto"`` (4 where the held-out errors say the fourth
+    carries information). Returns a dict with ``coef``, ``const``, ``frame``, ``degrees``, ``cv`` (held-out
+    RMS per degree), ``weights``, ``sigma_mm`` (scatter of one point), ``stage_error_mm`` (per position),
+    ``noise_poly``, ``cov``, ``suspects``, ``mode`` and ``variables_cv``."""
+    if variables not in (3, 4, "auto"):
+        raise SlmlabError(f"variables must be 3, 4 or 'auto', not {variables!r}")
     pts, groups, positions, target, mode = _rows(cal, mode)
     w = pts[IMAGE_COLUMNS].to_numpy(float)
     dots = point_keys(pts["row"], pts["col"]) * 16 + positions // 1_000_000
-    frame = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy())
+    known_depth = target[:, 2] if mode == "target" else None
+    frame = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy(), depth=known_depth)
+    depth_cap = (len(np.unique(np.round(target[:, 2], 6))) if mode in ("target", "zstack") else max_degree + 1)
     # variance components (one row's scatter, the stage's error per position) from a rich polynomial
     # and how one point's scatter grows with defocus (the rows' relative precision)
     rich = max(d for d in range(1, max_degree + 1) if d == 1 or len(_exponents(d)) * 4 < len(w))
     phi_rich = features(w, rich, frame)
+    rich_mask = _monomial_mask([rich] * 3, 3, depth_cap)
     depth = _variables(w, frame)[:, 2]
-    pre = _solve(phi_rich, target, groups, positions)
+    pre = _solve(phi_rich, target, groups, positions, mask=rich_mask)
     precision = _precision(_noise_vs_depth(depth, pre["within"], pre["weights"], 1.0), depth)
-    pre = _solve(phi_rich, target, groups, positions, precision=precision)
+    pre = _solve(phi_rich, target, groups, positions, precision=precision, mask=rich_mask)
     variance = (pre["sigma_e_mm"] ** 2, pre["sigma_u_mm"] ** 2)
-    cv = {}
-    if degree is None:  # one degree per coordinate, each on its own held-out error (Z's noise would
-        held = (pts["position"].to_numpy() % 3 == 0)  # otherwise push X and Y to overfit)
-        if held.all() or not held.any() or len(np.unique(positions[~held])) < 2:
+    n_pos = pd.Series(positions).groupby(positions // 1_000_000).nunique()
+    if mode == "moves":  # every third position of each sequence held out
+        held = (pts["position"].to_numpy() % 3 == 0)
+        folds = [(~held, held)]
+    else:  # the dots' world positions are known: crossed folds of positions and dots
+        from .selection import row_folds
+
+        folds = row_folds(pts, mode, diagonal=True)
+    cv, variables_cv = {}, {}
+    frames = {3: frame}
+    if variables != 3:
+        frames[4] = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy(), depth=known_depth, variables=4)
+        if variables == 4:
+            frames = {4: frames[4]}
+    if degree is None:
+        trains = [tr for tr, _ in folds]
+        if not folds or (mode == "moves" and (min(len(np.unique(positions[tr])) for tr in trains) < 2)):
             raise SlmlabError("too few stage positions to choose the degree (at least 3 per sequence); give "
                               "degree=... or image more positions", cal.path)
         # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
-        sampled = pd.Series(positions[~held]).groupby(positions[~held] // 1_000_000).nunique().min()
-        for d in range(1, max_degree + 1):
-            phi = features(w, d, frame)
-            if d > 1 and (phi.shape[1] + 1 >= (~held).sum() or d >= sampled):
-                break
-            cv[d] = _held_out_error(phi, target, groups, positions, held, variance, precision)
-        # the one-standard-error rule: the lowest degree within one standard error of the best. Held-out
-        # positions lie on the calibration's own axes; a needlessly high degree extrapolates badly into
-        # the rest of the volume, which they cannot see.
-        se = 1 / np.sqrt(2 * held.sum())
-        degrees = [min(d for d in cv if cv[d][k] <= min(v[k] for v in cv.values()) * (1 + se)) for k in range(3)]
+        sampled = (min(pd.Series(positions[tr]).groupby(positions[tr] // 1_000_000).nunique().min() for tr in trains)
+                   if n_pos.min() >= 3 else max_degree + 1)
+        chosen = {}
+        for nv, fr in frames.items():
+            chosen[nv] = _choose_degrees(w, fr, target, groups, positions, folds, variance, precision, depth_cap,
+                                         max_degree, sampled, one_se=mode == "moves")
+            variables_cv[nv] = [float(min(v[k] for v in chosen[nv][1].values())) for k in range(3)]
+        nv = 3
+        if 4 in chosen and 3 in chosen:
+            ratio = np.exp(np.mean(np.log(np.divide(variables_cv[4], np.maximum(variables_cv[3], 1e-300)))))
+            nv = 4 if ratio < 0.95 else 3
+        elif 4 in chosen:
+            nv = 4
+        frame = frames[nv]
+        degrees, cv = chosen[nv]
         cv = {d: [float(x) for x in v] for d, v in cv.items()}
     else:
         degrees = [int(d) for d in np.broadcast_to(np.asarray(degree, int), (3,))]
+        frame = frames[4] if variables == 4 else frames[3]
     phi = features(w, max(degrees), frame)
-    mask = np.array([[sum(e) <= dk for dk in degrees] for e in _exponents(max(degrees))])  # (m, 3)
-    dots_only = point_keys(pts["row"], pts["col"]) if mode == "zstack" else None
+    mask = _monomial_mask(degrees, _nvar(frame), depth_cap)
+    dots_only = point_keys(pts["row"], pts["col"]) if mode != "moves" else None
     fit = _solve(phi, target, groups, positions, mask=mask, variance=variance, clusters=dots_only,
                  precision=precision)
     coef, wts = fit["coef"], fit["weights"]
@@ -455,7 +566,7 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
     return {"coef": coef, "const": const, "frame": frame, "degree": max(degrees), "degrees": degrees, "cv": cv,
             "weights": wts, "sigma_mm": sigma, "stage_error_mm": fit["sigma_u_mm"],
             "noise_poly": noise_poly, "cov": cov, "feature_mean": fit["feature_mean"], "suspects": suspects,
-            "mode": mode, "length_reference": scale}
+            "mode": mode, "length_reference": scale, "variables_cv": variables_cv}
 
 
 @register
@@ -490,11 +601,12 @@ class DirectModel(Model):
 
     @classmethod
     def fit(cls, cal, *, degree: int | None = None, centroid_noise_px: float = 0.02, mode: str = "auto",
-            stage_scale_sigma: float = 0.0, length_reference: str = "stage", **_):
-        """Fit on a calibration set. ``mode``: ``"auto"``, ``"moves"`` or ``"zstack"``; ``length_reference``:
-        ``"plate"`` or ``"stage"`` (module docstring); ``stage_scale_sigma``: the stage's scale uncertainty
-        (relative, 1σ, from its datasheet), added to the per-point uncertainty of the axes whose scale is the
-        stage's."""
+            stage_scale_sigma: float = 0.0, length_reference: str = "stage", variables="auto", **_):
+        """Fit on a calibration set. ``mode``: ``"auto"``, ``"moves"``, ``"zstack"`` or ``"target"``
+        (:func:`world_positions`); ``length_reference``: ``"plate"`` or ``"stage"`` (module docstring);
+        ``stage_scale_sigma``: the stage's scale uncertainty (relative, 1σ, from its datasheet), added to the
+        per-point uncertainty of the axes whose scale is the stage's; ``variables``: 3, 4 or ``"auto"``
+        (:func:`fit_direct`)."""
         if length_reference not in ("plate", "stage"):
             raise SlmlabError(f"unknown length reference {length_reference!r}; use 'plate' or 'stage'")
         if degree is not None and not all(isinstance(d, (int, np.integer)) and 1 <= d <= 5
@@ -503,9 +615,11 @@ class DirectModel(Model):
         if not (isinstance(stage_scale_sigma, (int, float)) and 0 <= stage_scale_sigma < 0.1):
             raise SlmlabError(f"stage_scale_sigma is a relative 1-sigma scale uncertainty (e.g. 1e-4), "
                               f"not {stage_scale_sigma!r}")
-        f = fit_direct(cal, degree, mode=mode, length_reference=length_reference)
+        if variables not in (3, 4, "auto"):
+            raise SlmlabError(f"variables must be 3, 4 or 'auto', not {variables!r}")
+        f = fit_direct(cal, degree, mode=mode, length_reference=length_reference, variables=variables)
         ref = f["length_reference"]
-        if f["mode"] == "zstack":  # X, Y from the plate's lattice
+        if f["mode"] in ("zstack", "target"):  # X, Y from the plate's lattice or the target
             scale_sigma = [0.0, 0.0, stage_scale_sigma]
         elif length_reference == "plate" and ref["dots"]:
             scale_sigma = [*ref["sigma"], stage_scale_sigma]
@@ -516,13 +630,17 @@ class DirectModel(Model):
                    reference_mm=f["const"], feature_mean=f["feature_mean"],
                    options={"degree_chosen_by": "held-out positions" if degree is None else "user",
                             "mode": f["mode"], "length_reference": length_reference,
-                            "stage_scale_sigma": float(stage_scale_sigma)},
+                            "stage_scale_sigma": float(stage_scale_sigma), "variables": _nvar(f["frame"]),
+                            "variables_chosen_by": "held-out positions" if variables == "auto" else "user"},
                    calibration={"held_out_rms_mm_by_degree": {str(k): v for k, v in f["cv"].items()},
                                 "degree_per_coordinate": f["degrees"],
                                 "frame": ("stage axes" if f["mode"] == "moves" else
+                                          "the target's frame plus the stage's moves" if f["mode"] == "target" else
                                           "plate axes (x = ((cols+1)/2 - col) pitch, y = ((rows+1)/2 - row) "
                                           "pitch) and the Z stage's direction"),
+                                "held_out_rms_mm_by_variables": {str(k): v for k, v in f["variables_cv"].items()},
                                 "xy_scale_from": ("the plate's lattice" if f["mode"] == "zstack" else
+                                                  "the target" if f["mode"] == "target" else
                                                   f"grid plate ({ref['dots']} dots)"
                                                   if length_reference == "plate" and ref["dots"] else
                                                   "the stage's commanded moves"),
@@ -532,6 +650,16 @@ class DirectModel(Model):
                                 "residual_sigma_mm": [float(v) for v in f["sigma_mm"]],
                                 "stage_error_per_position_mm": [float(v) for v in f["stage_error_mm"]],
                                 "down_weighted_rows": f["suspects"].to_dict(orient="records")})
+
+    def describe(self) -> str:
+        deg = self.calibration.get("degree_per_coordinate", [self.degree] * 3)
+        return f"direct, {_nvar(self.frame)} variables, degrees {'/'.join(str(int(v)) for v in deg)}"
+
+    def fixed_options(self) -> dict:
+        out = {"variables": _nvar(self.frame), "mode": self.options.get("mode", "auto")}
+        if "degree_per_coordinate" in self.calibration:
+            out["degree"] = [int(v) for v in self.calibration["degree_per_coordinate"]]
+        return out
 
     def reconstruct(self, w: np.ndarray) -> np.ndarray:
         w = np.atleast_2d(np.asarray(w, float))

@@ -62,6 +62,15 @@ class Model:
     def from_parameters(cls, parameters: dict, calibration: dict, options: dict) -> "Model":  # pragma: no cover
         raise NotImplementedError
 
+    def describe(self) -> str:
+        """One line: the model and the settings the data chose (for tables and notes)."""
+        return self.name
+
+    def fixed_options(self) -> dict:
+        """Options of :meth:`fit` that reproduce this model's data-chosen settings (its degrees, ...), so that
+        held-out fits compare models as chosen on the whole set (:mod:`slmlab.selection`)."""
+        return {}
+
     # ---------------------------------------------------------------- files
     def to_dict(self) -> dict:
         return {

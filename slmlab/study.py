@@ -18,7 +18,8 @@ from .vision import fit_paper
 __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",
            "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
            "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out", "workspace_grid",
-           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions", "commanded_frame_limit"]
+           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions", "commanded_frame_limit",
+           "measure_level_offset"]
 
 TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
                 "KZX", "BZX_mm", "KZY", "BZY_mm"]
@@ -270,7 +271,7 @@ def leave_one_plane_out(cal, variants: dict[str, dict]) -> pd.DataFrame:
             model = calibrate(train, **options)
             e, sig = model.reconstruct(w) - truth, model.uncertainty(w)
             rows.append({"plane": int(plane), "Z_mm": float(test["stage_z_mm"].iloc[0]), "model": label,
-                         "degree_XYZ": str(model.calibration["degree_per_coordinate"]),
+                         "settings": model.describe(),
                          **{f"E{c}_mm": float(np.sqrt(np.mean(e[:, k] ** 2))) for k, c in enumerate("XYZ")},
                          **{f"s{c}_mm": float(np.mean(sig[:, k])) for k, c in enumerate("XYZ")},
                          "inside_95_percent": float(100 * np.mean(np.abs(e) <= 1.959964 * sig))})
@@ -369,3 +370,27 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
         errors.append(np.mean((dt @ lin[:3] - dt) ** 2, axis=0))
     frame = 1e3 * np.sqrt(np.mean(errors, axis=0))
     return {"frame_um": frame, "floor_um": floor, "attainable_vs_floor": np.sqrt(floor ** 2 + frame ** 2) / floor}
+
+
+def measure_level_offset(points: pd.DataFrame, model) -> dict:
+    """The depth of a two-level plate's second level in its frame [mm], measured from a Z stack: every
+    extracted dot seen in both views (``level`` 0 or 1) is reconstructed by ``model`` (calibrated on the first
+    level, whose z is 0), and per plane the median Z of the second level's dots less that of the first's is
+    one estimate. Planes where the second level would leave the calibrated depth range (extrapolation) are
+    left out, after a first estimate from all planes. Returns ``offset_mm`` (the median over planes),
+    ``spread_mm`` (their standard deviation), ``planes`` (per-plane values) and ``dots`` per level."""
+    both = points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    if "level" not in both.columns or not (both["level"] == 1).any():
+        raise ValueError("no second-level dots: extract a two-level plate (plates.moving.levels = 2)")
+    z = model.reconstruct(both[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))[:, 2]
+    both = both.assign(Z=z)
+    per = both.groupby(["position", "level"])["Z"].median().unstack("level").dropna()
+    stage = both.groupby("position")["stage_z_mm"].first().loc[per.index]
+    d = per[1] - per[0]
+    first = float(np.median(d))
+    lo, hi = float(both.loc[both["level"] == 0, "stage_z_mm"].min()), float(both.loc[both["level"] == 0, "stage_z_mm"].max())
+    inside = (stage + first >= lo) & (stage + first <= hi)
+    use = d[inside] if inside.sum() >= 2 else d
+    return {"offset_mm": float(np.median(use)), "spread_mm": float(np.std(use, ddof=1)) if len(use) > 1 else float("nan"),
+            "planes": {int(k): float(v) for k, v in use.items()},
+            "dots": {int(k): int(v) for k, v in both["level"].value_counts().sort_index().items()}}

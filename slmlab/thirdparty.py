@@ -1,17 +1,25 @@
 """Third-party calibration data in slmlab's interchange format (``../shared/realdata/``).
 
 The 4th International PIV Challenge's case E (Kähler et al., Exp. Fluids 57:97, 2016; images and point lists
-via fluidimage) is a real stereo rig imaging a dot plate (15 mm pitch) at seven known Z positions, 1 mm apart:
-a Z stack alone, which :class:`slmlab.direct.DirectModel` calibrates in its ``"zstack"`` mode. Its point
-lists are UVMAT ``GeometryCalib`` XML files (``X Y Z u v`` per ``PointCoord``, X, Y, Z in ``CoordUnit``), one
-per camera and plane; a derived CSV of the points both cameras see is read too. Conversion only: nothing is
-fitted here, and nothing is tuned to these data.
+via fluidimage) is a real stereo rig imaging a two-level dot plate (15 mm pitch, bright dots on black, a
+square and a triangle marker) at seven known Z positions, 1 mm apart: a Z stack alone. Two ways in:
 
-Conventions of the conversion (DATA_FORMAT.md): the first camera is the left view, the second the right;
-``u`` (column) is ``w1`` and ``v`` (row) is ``w2``; the Z positions, sorted, are the positions of sequence
-``Z``; the plate's rows and columns are numbered so that slmlab's plate convention
-(:func:`slmlab.direct.plate_xy`: ``x = ((cols + 1)/2 − col)·pitch``, ``y = ((rows + 1)/2 − row)·pitch``) gives
-back the data's own X and Y, with the plate's centre as the commanded stage X, Y.
+* :func:`pivchallenge_set`: the challenge's own picks, UVMAT ``GeometryCalib`` XML files (``X Y Z u v`` per
+  ``PointCoord``, X, Y, Z in ``CoordUnit``), one per camera and plane, on the plate's first level. UVMAT
+  writes pixel coordinates from 1 (MATLAB): the first pixel's centre is ``u = 1``, slmlab's ``w1 = 0``
+  (DATA_FORMAT.md). The conversion subtracts that one pixel (checked on the images: the picks sit
+  1.03 ± 0.14 px and 0.99 ± 0.14 px from slmlab's edge-based centres in camera 1).
+* :func:`pivchallenge_image_set`: a set of the images themselves, as a camera wrote them (16-bit TIFF), for
+  ``python -m slmlab extract``: ``stage.csv`` naming them, ``meta.json`` describing the plate.
+
+Conversion only: nothing is fitted here, and nothing is tuned to these data.
+
+Conventions (DATA_FORMAT.md): the first camera is the left view, the second the right; ``u`` (column) is
+``w1`` and ``v`` (row) is ``w2``; the Z positions, sorted, are the positions of sequence ``Z``. The picks'
+plate rows and columns are numbered so that slmlab's plate convention (:func:`slmlab.direct.plate_xy`:
+``x = ((cols + 1)/2 − col)·pitch``, ``y = ((rows + 1)/2 − row)·pitch``) gives back the data's own X and Y,
+with the plate's centre as the commanded stage X, Y. The extracted images carry the plate's own frame
+instead (``x_mm, y_mm, z_mm``, origin at the dot between the markers), which is the picks' frame.
 """
 
 from __future__ import annotations
@@ -25,10 +33,13 @@ import pandas as pd
 from .errors import SlmlabError
 from .io import POINT_COLUMNS, SET_FORMAT, CalibrationSet
 
-__all__ = ["read_uvmat_points", "zstack_set_from_points", "pivchallenge_set", "PIV_CHALLENGE_DIR"]
+__all__ = ["read_uvmat_points", "zstack_set_from_points", "pivchallenge_set", "pivchallenge_picks",
+           "pivchallenge_image_set", "PIV_CHALLENGE_DIR", "UVMAT_PIXEL_ORIGIN"]
 
 PIV_CHALLENGE_DIR = "pivchallenge4-caseE-stereo-calib"
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+#: UVMAT's pixel coordinate of the first pixel's centre (MATLAB counts from 1); slmlab's is 0
+UVMAT_PIXEL_ORIGIN = 1.0
 _POINT = re.compile(r"<PointCoord[^>]*>\s*([^<]+?)\s*</PointCoord>", re.S)
 _UNIT = re.compile(r"<CoordUnit>\s*(\w+)\s*</CoordUnit>", re.S)
 
@@ -66,7 +77,8 @@ def zstack_set_from_points(common: pd.DataFrame, image_size_px=(1024, 1024), dot
     missing = [c for c in need if c not in common.columns]
     if missing:
         raise SlmlabError(f"matched points lack the column(s) {', '.join(missing)}")
-    df = common[need].astype(float).dropna()
+    df = common[need].astype(float).dropna(subset=["X_mm", "Y_mm", "Z_mm"])
+    df = df[df[["u1_px", "v1_px"]].notna().all(axis=1) | df[["u2_px", "v2_px"]].notna().all(axis=1)]
     xs, ys, zs = (np.unique(df[c].round(9)) for c in ("X_mm", "Y_mm", "Z_mm"))
     steps = np.concatenate([np.diff(xs), np.diff(ys)])
     if len(zs) < 3 or len(steps) == 0:
@@ -92,22 +104,66 @@ def zstack_set_from_points(common: pd.DataFrame, image_size_px=(1024, 1024), dot
     return CalibrationSet(points=pts, meta=meta)
 
 
-def pivchallenge_set(folder: str | Path, cameras=("Camera_01", "Camera_03")) -> CalibrationSet:
-    """The PIV Challenge case E Z stack as a calibration set, from its UVMAT point lists
-    (``{camera}/img_{i}.xml``), the points both cameras see; raises :class:`SlmlabError` if absent."""
+def pivchallenge_picks(folder: str | Path, cameras=("Camera_01", "Camera_03"), *, common: bool = True
+                       ) -> pd.DataFrame:
+    """The PIV Challenge case E picks of both cameras (``{camera}/img_{i}.xml``), in slmlab's pixel
+    convention: columns ``X_mm, Y_mm, Z_mm, u1_px, v1_px, u2_px, v2_px``, one row per plate point and plane;
+    with ``common=False`` also the points only one camera picked (the other's columns empty)."""
     folder = Path(folder)
     frames = []
     for cam in cameras:
         files = sorted((folder / cam).glob("img_*.xml"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
         if not files:
             raise SlmlabError(f"no UVMAT point lists {cam}/img_*.xml", folder)
-        frames.append(pd.concat([read_uvmat_points(f) for f in files], ignore_index=True))
+        f = pd.concat([read_uvmat_points(f) for f in files], ignore_index=True)
+        f[["u_px", "v_px"]] -= UVMAT_PIXEL_ORIGIN
+        frames.append(f)
     key = ["X_mm", "Y_mm", "Z_mm"]
     for f in frames:
         f[key] = f[key].round(6)
-    common = frames[0].merge(frames[1], on=key, suffixes=("1", "2"))
-    common = common.rename(columns={"u_px1": "u1_px", "v_px1": "v1_px", "u_px2": "u2_px", "v_px2": "v2_px"})
+    both = frames[0].merge(frames[1], on=key, suffixes=("1", "2"), how="inner" if common else "outer")
+    both = both.rename(columns={"u_px1": "u1_px", "v_px1": "v1_px", "u_px2": "u2_px", "v_px2": "v2_px"})
+    return both.sort_values(["Z_mm", "Y_mm", "X_mm"], ascending=[True, False, True], kind="stable").reset_index(drop=True)
+
+
+def pivchallenge_set(folder: str | Path, cameras=("Camera_01", "Camera_03"), *, common: bool = True) -> CalibrationSet:
+    """The PIV Challenge case E Z stack as a calibration set, from its UVMAT point lists: the points both
+    cameras picked (``common=False``: every camera's picks, a view's columns empty where it has none);
+    raises :class:`SlmlabError` if absent."""
+    both = pivchallenge_picks(folder, cameras, common=common)
     # the dots are about 35 px across at about 11.9 px/mm (camera 1): 3 mm
-    return zstack_set_from_points(common, (1024, 1024), dot_diameter_mm=3.0,
+    return zstack_set_from_points(both, (1024, 1024), dot_diameter_mm=3.0,
                                   source=f"4th PIV Challenge case E (Kähler et al. 2016) via fluidimage, "
                                          f"{cameras[0]} (left) and {cameras[1]} (right), UVMAT point lists")
+
+
+def pivchallenge_image_set(folder: str | Path, out_dir: str | Path, *, level_offset_mm: float | None = None,
+                           cameras=(("Camera_01", 1), ("Camera_03", 3))) -> Path:
+    """Write a calibration set of the PIV Challenge case E images themselves into ``out_dir`` (created):
+    ``stage.csv`` naming the 16-bit TIFFs (paths relative to ``out_dir``; nothing is copied) at Z = −3 … +3
+    mm, and ``meta.json`` describing the plate: 15 mm pitch, bright dots, two levels (rows alternating
+    between two depths, offset by half a pitch), larger than the field (no rows or cols: its square and
+    triangle markers anchor the numbering). ``level_offset_mm``: the second level's z in the plate's frame,
+    if known (:func:`slmlab.study.measure_level_offset` measures it)."""
+    import os
+
+    from .io import atomic_write_text, json_text
+
+    folder, out_dir = Path(folder).resolve(), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+    for k in range(1, 8):
+        names = [os.path.relpath(folder / cam / f"E_camera_{n}_z_{k}.tif", out_dir.resolve()) for cam, n in cameras]
+        for name in names:
+            if not (out_dir / name).exists():
+                raise SlmlabError(f"case E image {name} not found", out_dir / name)
+        rows.append(f"Z,{k},0,0,{k - 4},{names[0]},{names[1]}")
+    plate = {"pitch_mm": 15.0, "dot_diameter_mm": 3.0, "dots": "bright", "levels": 2}
+    if level_offset_mm is not None:
+        plate["level_offset_mm"] = float(level_offset_mm)
+    meta = {"format": SET_FORMAT, "image_size_px": [1024, 1024], "plates": {"moving": plate},
+            "source": "4th PIV Challenge case E (Kähler et al. 2016) via fluidimage: the calibration images, "
+                      f"{cameras[0][0]} (left) and {cameras[1][0]} (right)"}
+    atomic_write_text(out_dir / "stage.csv", "\n".join(rows) + "\n")
+    atomic_write_text(out_dir / "meta.json", json_text(meta))
+    return out_dir

@@ -46,10 +46,11 @@ def reconstruct_all(model, val):
     return out
 
 
-def test_direct_is_the_default_and_reaches_the_noise_floor_over_the_volume(volume):
+def test_the_default_chooses_direct_on_stage_moves_and_reaches_the_noise_floor_over_the_volume(volume):
     cal, val = volume
     model = slmlab.calibrate(cal)
-    assert model.name == "direct"
+    assert model.name == "auto" and model.calibration["selection"]["choice"] == {"X": "direct", "Y": "direct",
+                                                                                 "Z": "direct"}
     floor = displacement_rms(val, noise_floor(val))
     ours = displacement_rms(val, reconstruct_all(model, val))
     paper = displacement_rms(val, reconstruct_all(slmlab.calibrate(cal, "paper-m2"), val))
@@ -136,7 +137,7 @@ def test_a_z_stack_alone_calibrates_to_the_noise_floor(zstack):
     cal, val, frame = zstack
     assert set(cal.points["sequence"]) == {"Z"}
     model = slmlab.calibrate(cal)
-    assert model.name == "direct" and model.options["mode"] == "zstack"
+    assert model.name == "auto" and model.calibration["selection"]["mode"] == "zstack"
     t = study.volumetric_comparison({"z": model}, val, frame=frame).set_index("model").loc["z"]
     assert all(t[f"{c}_vs_floor"] <= 1.2 for c in "XYZ"), t
     # in the stage frame instead, the plate's mounting rotation shows as large X, Y errors: the frame matters
@@ -168,8 +169,10 @@ def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_pat
     assert sorted(cal.points["position"].unique()) == list(range(1, 8))
     back = slmlab.read_set(slmlab.write_set(tmp_path / "piv", cal))
     xy = plate_xy(back.points["row"], back.points["col"], back.plate("Z")) + back.points[["stage_x_mm", "stage_y_mm"]].to_numpy()
+    # UVMAT counts pixels from 1 (MATLAB), slmlab from 0
+    origin = thirdparty.UVMAT_PIXEL_ORIGIN
     merged = pd.DataFrame({"X_mm": xy[:, 0], "Y_mm": xy[:, 1], "Z_mm": back.points["stage_z_mm"],
-                           "u_cam1_px": back.points["wl1"], "v_cam3_px": back.points["wr2"]})
+                           "u_cam1_px": back.points["wl1"] + origin, "v_cam3_px": back.points["wr2"] + origin})
     joined = merged.round(6).merge(csv.round(6), on=["X_mm", "Y_mm", "Z_mm", "u_cam1_px", "v_cam3_px"])
     assert len(joined) == 112      # every converted point is one of the CSV's, at its own X, Y, Z
 
@@ -177,9 +180,9 @@ def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_pat
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
     cal = thirdparty.pivchallenge_set(PIV)
-    model = slmlab.calibrate(cal)
-    assert model.options["mode"] == "zstack" and abs(model.frame["direction"][1]) > 0.99  # oblique camera: rows
-    lopo = study.leave_one_plane_out(cal, {"default": {}, "linear": {"degree": 1}})
+    direct = slmlab.calibrate(cal, "direct")
+    assert direct.options["mode"] == "zstack" and abs(direct.frame["direction"][1]) > 0.99  # oblique camera: rows
+    lopo = study.leave_one_plane_out(cal, {"default": {}, "linear": {"model": "direct", "degree": 1}})
     rms = lopo.groupby("model")[["EX_mm", "EY_mm", "EZ_mm"]].apply(lambda g: np.sqrt((g ** 2).mean()))
     assert (rms.loc["linear"] > 3 * rms.loc["default"]).all(), rms   # the initial linear model is not enough
     d = lopo[lopo["model"] == "default"]
