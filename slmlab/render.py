@@ -30,7 +30,7 @@ from .io import CalibrationSet, atomic_write_bytes
 from .microscope import Microscope, Plate, from_dict
 
 __all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png",
-           "expose"]
+           "expose", "render_board", "render_board_set", "board_orientation"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -226,3 +226,149 @@ def render_plate(microscope: Microscope, plate: Plate, centre_mm=(0.0, 0.0, 0.0)
     img = render_view(microscope, p, plate, side, np.random.default_rng(seed))
     w = microscope.project_view(p, side)
     return img, pd.DataFrame({"row": i[keep], "col": j[keep], "w1": w[:, 0], "w2": w[:, 1]})
+
+
+# ------------------------------------------------------------------------------------------------ boards
+def _plate_points_of_pixels(microscope: Microscope, centre_mm, orientation, side: str, step_px: int = 8,
+                            iterations: int = 6):
+    """Plate-frame coordinates ``(x, y)`` [mm] of a coarse grid of image pixels (every ``step_px``) of view
+    ``side``: where each pixel's ray meets the plate plane, by Newton on :meth:`Microscope.project_view`."""
+    width, height = microscope.optics.image_size_px
+    us, vs = np.arange(0, width + step_px, step_px, dtype=float), np.arange(0, height + step_px, step_px, dtype=float)
+    u, v = np.meshgrid(us, vs)
+    target = np.column_stack([u.ravel(), v.ravel()])
+    c, r = np.asarray(centre_mm, float), np.asarray(orientation, float)
+
+    def proj(xy):
+        return microscope.project_view(c + xy[:, :1] * r[:, 0] + xy[:, 1:2] * r[:, 1], side)
+
+    h = 1e-4
+    p0 = proj(np.zeros((1, 2)))
+    jac = np.column_stack([(proj(np.array([[h, 0.0]])) - p0)[0] / h, (proj(np.array([[0.0, h]])) - p0)[0] / h])
+    xy = (target - p0) @ np.linalg.inv(jac).T
+    for _ in range(iterations):
+        f = proj(xy)
+        j1, j2 = (proj(xy + [h, 0.0]) - f) / h, (proj(xy + [0.0, h]) - f) / h
+        det = j1[:, 0] * j2[:, 1] - j1[:, 1] * j2[:, 0]
+        d = target - f
+        xy = xy + np.column_stack([(j2[:, 1] * d[:, 0] - j2[:, 0] * d[:, 1]) / det,
+                                   (-j1[:, 1] * d[:, 0] + j1[:, 0] * d[:, 1]) / det])
+    return xy.reshape(len(vs), len(us), 2)
+
+
+def _upsample(coarse: np.ndarray, step: int, width: int, height: int) -> np.ndarray:
+    """A map known on nodes every ``step`` px (node ``k`` at pixel ``k·step``), at every pixel, by separable
+    bilinear interpolation in floating point (``float32`` result)."""
+    def weights(n):
+        s = np.arange(n) / step
+        i0 = np.minimum(np.floor(s).astype(int), coarse.shape[0 if n == height else 1] - 2)
+        return i0, (s - i0)[None, :]
+    i0, fx = weights(width)
+    rows = coarse[:, i0] * (1 - fx) + coarse[:, i0 + 1] * fx               # (rows of nodes, width)
+    j0, fy = weights(height)
+    return (rows[j0] * (1 - fy.T) + rows[j0 + 1] * fy.T).astype(np.float32)
+
+
+def render_board(microscope: Microscope, texture: np.ndarray, texture_px_per_mm: float, board_size_mm,
+                 centre_mm, orientation, side: str, rng: np.random.Generator) -> np.ndarray:
+    """One 8-bit image of a printed planar target (a ChArUco board, ...) through the virtual microscope.
+
+    ``texture`` is the target's reflectance image (8-bit, white = 255), ``texture_px_per_mm`` its sampling,
+    ``board_size_mm`` its ``(width, height)``; the target's centre sits at microscope-frame ``centre_mm``
+    with its ``x`` (along the texture's rows) and ``y`` (up the texture) axes along the columns of
+    ``orientation``. Each image pixel's ray is traced to the target plane (the same projection and
+    distortion as the dots, inverted by Newton on a coarse grid and interpolated), the texture is
+    area-integrated over the pixel's footprint, blurred by the defocus at the target's centre (pillbox and
+    diffraction Gaussian, as the dots) and exposed with vignetting, shot and read noise (:func:`expose`)."""
+    o, im = microscope.optics, microscope.imaging
+    width, height = o.image_size_px
+    step = 8
+    xy = _plate_points_of_pixels(microscope, centre_mm, orientation, side, step)
+    bw, bh = board_size_mm
+    tx = (xy[..., 0] + bw / 2) * texture_px_per_mm - 0.5        # texture columns (pixel centres at integers)
+    ty = (bh / 2 - xy[..., 1]) * texture_px_per_mm - 0.5        # texture rows (y up the board, rows down)
+    mx, my = _upsample(tx, step, width, height), _upsample(ty, step, width, height)
+    footprint = max(int(round(texture_px_per_mm * o.pixel_mm)), 1)   # texture px per image px
+    tex = cv2.blur(texture.astype(np.float32) / 255.0, (footprint, footprint)) if footprint > 1 else \
+        texture.astype(np.float32) / 255.0
+    refl = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
+    blur, sigma = im.blur_px(np.array([centre_mm[2]]), o.pixel_mm)
+    k = _psf(int(round(blur[0] * 20)), int(round(sigma * 20)))
+    refl = cv2.filter2D(refl, -1, k, borderType=cv2.BORDER_REPLICATE)
+    dark = im.dot_dn / im.background_dn
+    return expose(dark + (1.0 - dark) * refl, im, rng)
+
+
+def board_orientation(microscope: Microscope, tilt_deg=(0.0, 0.0)) -> np.ndarray:
+    """The 3 × 3 rotation (plate frame to microscope frame, columns: the board's x, y axes and its normal) of a
+    printed board laid so that the left camera reads it the right way round. The virtual microscope's image
+    is a mirror image of the focal plane (its inverted optics, as the paper's ``EX`` and ``EY``, both
+    negative, imply), which a dot plate never shows but an ArUco code does: where the view is mirrored the
+    board's y axis is turned over."""
+    from .simulate import _tilt
+
+    r = _tilt(*tilt_deg)
+    p0 = microscope.project_view(np.zeros((1, 3)), "l")[0]
+    j = np.column_stack([microscope.project_view(1e-3 * r[:, k][None, :], "l")[0] - p0 for k in (0, 1)])
+    # image w2 points down: a view that is not mirrored has a negative Jacobian determinant
+    return r @ np.diag([1.0, -1.0, -1.0]) if np.linalg.det(j) > 0 else r
+
+
+def render_board_set(out_dir: str | Path, microscope: Microscope, board: dict, stage_z_mm, *, seed: int = 0,
+                     tilt_deg=(0.0, 0.0), texture_px_per_mm: float = 1000.0) -> Path:
+    """A Z stack of a ChArUco board through the virtual microscope, written as a set to extract: PNG pairs in
+    ``images/``, ``stage.csv`` naming them, ``meta.json`` (``pattern: charuco``) and ``truth.csv`` (every
+    corner's true image centres and its stage-frame position, DATA_FORMAT.md).
+
+    ``board``: ``squares [x, y]``, ``square_mm``, ``marker_mm``, ``dictionary``, ``legacy`` (OpenCV's). The
+    board's centre is at the middle of the field, in focus, at stage zero; each position moves the stage
+    along Z (the paper preset's stage, with its axes and errors)."""
+    import pandas as pd
+
+    from .boards import charuco_board
+    from .imageset import PlateSpec
+    from .io import SET_FORMAT, atomic_write_text, json_text, write_csv
+    from .simulate import Session, stage_origin
+
+    out = Path(out_dir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    spec = PlateSpec("moving", None, None, float(board["square_mm"]), pattern="charuco",
+                     board={k: board[k] for k in ("squares", "marker_mm", "dictionary", "legacy") if k in board})
+    cb = charuco_board(spec)
+    sx, sy = (int(v) for v in board["squares"])
+    size_mm = (sx * spec.pitch_mm, sy * spec.pitch_mm)
+    texture = cb.generateImage((int(round(size_mm[0] * texture_px_per_mm)), int(round(size_mm[1] * texture_px_per_mm))),
+                               marginSize=0)
+    corners = np.asarray(cb.getChessboardCorners(), float)          # OpenCV: x right, y down, from the corner
+    plate_xy = np.column_stack([corners[:, 0] - size_mm[0] / 2, size_mm[1] / 2 - corners[:, 1]])
+    orient = board_orientation(microscope, tilt_deg)
+    z = np.asarray(stage_z_mm, float)
+    commanded = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
+    origin = stage_origin(microscope, Session(positions=(0, 0, 0), grid=False))
+    rng_stage = np.random.default_rng([seed, 21])
+    actual = microscope.stage.actual(commanded, rng_stage)
+    rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+    truth = []
+    per_row = sx - 1
+    for k, (cmd, act) in enumerate(zip(commanded, actual), 1):
+        centre = microscope.stage_to_microscope(act[None, :], origin)[0]
+        pts = centre + np.column_stack([plate_xy, np.zeros(len(plate_xy))]) @ orient.T
+        w = microscope.project(pts)
+        world = microscope.microscope_to_stage(pts, origin)
+        ids = np.arange(len(plate_xy))
+        truth.append(pd.DataFrame({"sequence": "Z", "position": k, "row": ids // per_row + 1, "col": ids % per_row + 1,
+                                   "wl1": w[:, 0], "wl2": w[:, 1], "wr1": w[:, 2], "wr2": w[:, 3],
+                                   "X_mm": world[:, 0], "Y_mm": world[:, 1], "Z_mm": world[:, 2]}))
+        for side in "lr":
+            img = render_board(microscope, texture, texture_px_per_mm, size_mm, centre, orient, side,
+                               _image_rng(seed, "Z", k, side))
+            write_png(out / "images" / image_name("Z", k, side), img)
+        rows.append(f"Z,{k},{cmd[0]:.6f},{cmd[1]:.6f},{cmd[2]:.6f},images/{image_name('Z', k, 'l')},"
+                    f"images/{image_name('Z', k, 'r')}")
+    plate = {"pattern": "charuco", "pitch_mm": spec.pitch_mm, "board": spec.board}
+    meta = {"format": SET_FORMAT, "image_size_px": list(microscope.optics.image_size_px), "plates": {"moving": plate},
+            "source": f"slmlab virtual CMO microscope, preset {microscope.preset}: a ChArUco board Z stack, seed {seed}"}
+    atomic_write_text(out / "stage.csv", "\n".join(rows) + "\n")
+    atomic_write_text(out / "meta.json", json_text(meta))
+    write_csv(out / "truth.csv", pd.concat(truth, ignore_index=True))
+    return out

@@ -66,7 +66,7 @@ from .io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, Calibra
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 
 __all__ = ["PRESETS", "preset", "Session", "PAPER_TESTS", "paper_test", "validation_session", "simulate_set", "describe", "depth_response", "nominal_vs_paper", "tilted_session", "volume_session", "noise_floor",
-           "stage_origin", "zstack_session", "zstack_plate", "zstack_frame"]
+           "stage_origin", "zstack_session", "zstack_plate", "zstack_frame", "stepped_target", "target_set"]
 
 # --------------------------------------------------------------------------------------------- presets
 _P1 = 9.35e-4  # decentring [1/mm]
@@ -261,11 +261,11 @@ def zstack_plate(rotation_deg: float = 0.4, tilt_deg: float = 0.05) -> Plate:
     return Plate(31, 31, 0.2, 0.1, fabrication_tolerance_um=0.25, rotation_deg=rotation_deg, tilt_deg=tilt_deg)
 
 
-def zstack_frame(microscope: Microscope, plate: Plate | None = None) -> np.ndarray:
+def zstack_frame(microscope: Microscope, plate: Plate | None = None, orientation: np.ndarray | None = None) -> np.ndarray:
     """The 3 × 3 matrix taking stage-frame displacements [mm] to the frame a Z-stack calibration reconstructs
-    in: the plate's x and y axes (:meth:`Plate.nominal_points`) and the Z stage's direction, as axes."""
-    plate = plate or microscope.moving_plate
-    r = plate.orientation()
+    in: the plate's x and y axes (:meth:`Plate.nominal_points`, or the columns of ``orientation``, e.g. a
+    board's, :func:`slmlab.render.board_orientation`) and the Z stage's direction, as axes."""
+    r = (plate or microscope.moving_plate).orientation() if orientation is None else np.asarray(orientation, float)
     basis = np.column_stack([r[:, 0], r[:, 1], microscope.stage.axes[:, 2]])
     return np.linalg.solve(basis, microscope.stage.axes)
 
@@ -482,3 +482,54 @@ def noise_floor(cal: CalibrationSet) -> np.ndarray:
     ok = np.isfinite(w).all(axis=1)
     out[ok] = m.microscope_to_stage(m.triangulate(w[ok]), np.asarray(sim["stage_origin_mm"]))
     return out
+
+
+def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_mm=(-1.0, -0.5, 0.0, 0.5, 1.0),
+                   ) -> "pd.DataFrame":
+    """A stepped 3D dot target: a ``rows × cols`` lattice of pitch ``pitch_mm`` whose dots stand on
+    ``len(steps_mm)`` heights ``steps_mm`` [mm] in a knight's-move pattern (step ``(row + 2·col) mod n``),
+    so that height does not follow ``x`` or ``y`` (a staircase across the field would confound them, and
+    one pose could not tell depth from position). Returns ``row, col, x_mm, y_mm, z_mm`` in the target's
+    frame (the plate convention of DATA_FORMAT.md for ``x, y``)."""
+    i, j = np.meshgrid(np.arange(1, rows + 1), np.arange(1, cols + 1), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    band = (i + 2 * j) % len(steps_mm)
+    return pd.DataFrame({"row": i, "col": j, "x_mm": ((cols + 1) / 2 - j) * pitch_mm,
+                         "y_mm": ((rows + 1) / 2 - i) * pitch_mm, "z_mm": np.asarray(steps_mm, float)[band]})
+
+
+def target_set(microscope: Microscope, target: "pd.DataFrame", stage_mm, *, seed: int = 0, sequence: str = "K",
+               dot_diameter_mm: float = 0.1) -> CalibrationSet:
+    """A known-target calibration set (DATA_FORMAT.md): the dots of ``target`` (``row, col, x_mm, y_mm, z_mm``
+    in the target's frame, its axes along the stage's) imaged at the commanded stage positions ``stage_mm``
+    ``(k, 3)`` [mm] (one row for a single pose), with the stage's errors and the dot finder's noise; the
+    target's origin is at the field's centre, in focus, at stage zero. ``truth`` holds the true centres and
+    stage-frame positions."""
+    stage_mm = np.atleast_2d(np.asarray(stage_mm, float))
+    stage_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 5]).spawn(2))
+    origin = stage_origin(microscope, Session(positions=(0, 0, 0), grid=False))
+    local = target[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    frames, truths = [], []
+    actual = microscope.stage.actual(stage_mm, stage_rng)
+    for k, (cmd, act) in enumerate(zip(stage_mm, actual), 1):
+        world = act + local
+        p = microscope.stage_to_microscope(world, origin)
+        w_true = microscope.project(p)
+        sigma = microscope.noise.sigma_px(p[:, 2], microscope.optics.depth_of_field_mm)
+        w = w_true + noise_rng.normal(size=w_true.shape) * sigma[:, None]
+        vis = microscope.visible(w_true, dot_diameter_mm)
+        w[:, 0:2][~vis[:, 0]] = np.nan
+        w[:, 2:4][~vis[:, 1]] = np.nan
+        key = {"sequence": sequence, "position": k, "row": target["row"].to_numpy(), "col": target["col"].to_numpy()}
+        frames.append(pd.DataFrame({**key, "stage_x_mm": cmd[0], "stage_y_mm": cmd[1], "stage_z_mm": cmd[2],
+                                    **{c: w[:, n] for n, c in enumerate(IMAGE_COLUMNS)},
+                                    "x_mm": local[:, 0], "y_mm": local[:, 1], "z_mm": local[:, 2]}))
+        truths.append(pd.DataFrame({**key, **{c: w_true[:, n] for n, c in enumerate(IMAGE_COLUMNS)},
+                                    "X_mm": world[:, 0], "Y_mm": world[:, 1], "Z_mm": world[:, 2]}))
+    points = pd.concat(frames, ignore_index=True)[[*POINT_COLUMNS, "x_mm", "y_mm", "z_mm"]]
+    plate = {"pitch_mm": float(abs(np.diff(np.unique(local[:, 0]))).min()), "dot_diameter_mm": dot_diameter_mm}
+    meta = {"format": SET_FORMAT, "image_size_px": list(microscope.optics.image_size_px), "plates": {"moving": plate},
+            "source": f"slmlab {__version__} virtual microscope, preset {microscope.preset}: a known target, seed {seed}",
+            "simulator": {"microscope": microscope.as_dict(), "seed": int(seed),
+                          "stage_origin_mm": [float(v) for v in origin]}}
+    return CalibrationSet(points=points, meta=meta, truth=pd.concat(truths, ignore_index=True)[TRUTH_COLUMNS])

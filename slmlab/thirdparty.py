@@ -34,7 +34,8 @@ from .errors import SlmlabError
 from .io import POINT_COLUMNS, SET_FORMAT, CalibrationSet
 
 __all__ = ["read_uvmat_points", "zstack_set_from_points", "pivchallenge_set", "pivchallenge_picks",
-           "pivchallenge_image_set", "PIV_CHALLENGE_DIR", "UVMAT_PIXEL_ORIGIN"]
+           "pivchallenge_image_set", "dice_image_set", "chessboard_image_set", "PIV_CHALLENGE_DIR", "DICE_DIR",
+           "CHESSBOARD_DIR", "UVMAT_PIXEL_ORIGIN"]
 
 PIV_CHALLENGE_DIR = "pivchallenge4-caseE-stereo-calib"
 _UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
@@ -167,3 +168,53 @@ def pivchallenge_image_set(folder: str | Path, out_dir: str | Path, *, level_off
     atomic_write_text(out_dir / "stage.csv", "\n".join(rows) + "\n")
     atomic_write_text(out_dir / "meta.json", json_text(meta))
     return out_dir
+
+
+DICE_DIR = "dice-calb-sys2-dot-target"
+CHESSBOARD_DIR = "opencv-stereo-chessboard-9x6"
+
+
+def _free_pose_set(out_dir: Path, pairs: list[tuple[Path, Path]], plate: dict, size_px, source: str) -> Path:
+    """A set of stereo pairs in free poses (no known stage moves): sequence ``T`` (as the simulator's held
+    poses), every position at stage zero, images named by ``stage.csv`` relative to ``out_dir``."""
+    import os
+
+    from .io import atomic_write_text, json_text
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+    for k, (left, right) in enumerate(pairs, 1):
+        names = [os.path.relpath(Path(p).resolve(), out_dir.resolve()) for p in (left, right)]
+        rows.append(f"T,{k},0,0,0,{names[0]},{names[1]}")
+    meta = {"format": SET_FORMAT, "image_size_px": [int(v) for v in size_px], "plates": {"moving": plate},
+            "source": source}
+    atomic_write_text(out_dir / "stage.csv", "\n".join(rows) + "\n")
+    atomic_write_text(out_dir / "meta.json", json_text(meta))
+    return out_dir
+
+
+def dice_image_set(folder: str | Path, out_dir: str | Path) -> Path:
+    """DICe's real stereo dot-target pairs (``CalB-sys2-00NN_{0,1}.jpeg``) as a set to extract: black dots at
+    3.5 mm with three donut markers in an L whose corner is dot (2, 2) of the 8 × 10 dots DICe uses
+    (``stereo_marker_dots_input.xml``); free hand-held poses."""
+    folder = Path(folder)
+    lefts = sorted((folder / "images").glob("CalB-sys2-*_0.jpeg"))
+    if not lefts:
+        raise SlmlabError("no DICe images images/CalB-sys2-*_0.jpeg", folder)
+    pairs = [(p, p.with_name(p.name.replace("_0.", "_1."))) for p in lefts]
+    plate = {"rows": 8, "cols": 10, "pitch_mm": 3.5, "dot_diameter_mm": 1.75, "dots": "dark", "marker_origin": [2, 2]}
+    return _free_pose_set(out_dir, pairs, plate, (2448, 2048), "DICe CalB-sys2 stereo dot target (Sandia), "
+                          "cameras 0 (left) and 1 (right)")
+
+
+def chessboard_image_set(folder: str | Path, out_dir: str | Path) -> Path:
+    """OpenCV's stereo chessboard samples (``left01..14``, ``right01..14``, 9 × 6 inner corners) as a set to
+    extract with ``pattern: chessboard``; free hand-held poses, square size 1 (arbitrary units)."""
+    folder = Path(folder)
+    lefts = sorted((folder / "images").glob("left*.jpg"))
+    if not lefts:
+        raise SlmlabError("no chessboard images images/left*.jpg", folder)
+    pairs = [(p, p.with_name(p.name.replace("left", "right"))) for p in lefts]
+    plate = {"rows": 6, "cols": 9, "pitch_mm": 1.0, "pattern": "chessboard"}
+    return _free_pose_set(out_dir, pairs, plate, (640, 480), "OpenCV stereo chessboard samples (via DICe)")
