@@ -33,7 +33,7 @@ from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, CalibrationSet
 from .models import Model, register
 
-__all__ = ["terms", "SoloffModel", "fit_soloff", "DEGREES"]
+__all__ = ["terms", "SoloffModel", "QuadraticReference", "fit_soloff", "DEGREES"]
 
 #: candidate (degree in X and Y, degree in Z); the first is Soloff's
 DEGREES = ((3, 2), (3, 1), (2, 2), (2, 1), (4, 2))
@@ -73,14 +73,20 @@ def _quadratic(w: np.ndarray, centre, scale) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def fit_soloff(world: np.ndarray, w: np.ndarray, xy_degree: int = 3, z_degree: int = 2) -> dict:
+def fit_soloff(world: np.ndarray, w: np.ndarray, xy_degree: int = 3, z_degree: int = 2, dots=None) -> dict:
     """Least-squares fit of the four image coordinates ``w (n, 4)`` [px] as polynomials of ``world (n, 3)``
     [mm]. Rows with a missing image coordinate are left out of that camera's fit only. Returns the model's
-    parameters (``centre_mm``, ``scale_mm``, ``exponents``, ``coef (m, 4)``, ``sigma_px (4,)``, the
-    coefficients' ``(ΦᵀΦ)⁻¹`` per camera, and the regression start ``start``)."""
+    parameters (``centre_mm``, ``scale_mm``, ``exponents``, ``coef (m, 4)``, ``sigma_px (4,)`` the residual
+    scatter, ``noise_poly (4, 3)`` one point's variance [px²] as a quadratic in the normalised depth, the
+    coefficients' ``(ΦᵀΦ)⁻¹`` per camera, and the regression start ``start``).
+
+    ``dots``: a label per row (the dot); where dots recur at several positions (a Z stack) one point's
+    scatter is measured within dots, so that the plate's own errors (the same in every plane) are not taken
+    for a measurement's noise."""
     world, w = np.asarray(world, float), np.asarray(w, float)
     ok_world = np.isfinite(world).all(axis=1)
     world, w = world[ok_world], w[ok_world]
+    dots = None if dots is None else np.asarray(dots)[ok_world]
     lo, hi = world.min(axis=0), world.max(axis=0)
     centre, scale = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-9)
     exps = terms(xy_degree, z_degree)
@@ -105,9 +111,41 @@ def fit_soloff(world: np.ndarray, w: np.ndarray, xy_degree: int = 3, z_degree: i
     both = np.isfinite(w).all(axis=1)
     wc, ws = w[both].mean(axis=0), np.maximum(w[both].std(axis=0), 1e-9)
     start, *_ = np.linalg.lstsq(_quadratic(w[both], wc, ws), world[both], rcond=None)
-    return {"centre_mm": centre, "scale_mm": scale, "exponents": exps, "coef": coef,
-            "sigma_px": np.maximum(sigma, 1e-6), "gram_inverse": inv,
-            "start": {"centre_px": wc, "scale_px": ws, "coef": start}}
+    sigma = np.maximum(sigma, 1e-6)
+    noise = _noise_poly(a @ coef - w, (world[:, 2] - centre[2]) / scale[2], dots, sigma, len(exps))
+    return {"centre_mm": centre, "scale_mm": scale, "exponents": exps, "coef": coef, "sigma_px": sigma,
+            "noise_poly": noise, "gram_inverse": inv, "start": {"centre_px": wc, "scale_px": ws, "coef": start}}
+
+
+def _noise_poly(res: np.ndarray, zn: np.ndarray, dots, sigma: np.ndarray, m: int) -> np.ndarray:
+    """One point's variance [px²] per image coordinate as ``a + b·zn + c·zn²`` ``(4, 3)``: fitted to the
+    squared residuals within dots (net of each dot's mean over positions) where dots recur, else constant at
+    the residual variance; floored at a quarter of its mean."""
+    out = np.zeros((4, 3))
+    out[:, 0] = sigma ** 2
+    if dots is None:
+        return out
+    labels, inv = np.unique(dots, return_inverse=True)
+    inv = inv.ravel()
+    for c in range(4):
+        ok = np.isfinite(res[:, c])
+        n_d = np.bincount(inv[ok], minlength=len(labels))
+        if (n_d >= 2).sum() < 10:
+            continue
+        mean = np.bincount(inv[ok], res[ok, c], len(labels)) / np.maximum(n_d, 1)
+        keep = ok & (n_d[inv] >= 2)
+        within = (res[keep, c] - mean[inv[keep]]) ** 2 * (n_d[inv[keep]] / (n_d[inv[keep]] - 1))
+        z = zn[keep]
+        coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(z), z, z * z]), within, rcond=None)
+        out[c] = coef
+    return out
+
+
+def _noise_sigma(noise_poly: np.ndarray, zn: np.ndarray) -> np.ndarray:
+    """One point's σ ``(4, n)`` [px] at normalised depths ``zn (n,)`` (floored at half the mean σ)."""
+    var = noise_poly @ np.stack([np.ones_like(zn), zn, zn * zn])
+    floor = 0.25 * np.maximum(noise_poly[:, 0], 1e-12)[:, None]
+    return np.sqrt(np.maximum(var, floor))
 
 
 @register
@@ -119,6 +157,7 @@ class SoloffModel(Model):
                "Gauss-Newton reconstruction; calibrates from a Z stack or a known target")
     accuracy_rank = 8
     units = {"coef": "px per normalised monomial", "centre_mm": "mm", "scale_mm": "mm", "sigma_px": "px",
+             "noise_poly": "px^2 per power of the normalised depth",
              "gram_inverse": "1 per normalised monomial^2", "start": "mm per normalised quadratic monomial"}
 
     def __init__(self, p: dict, **kw):
@@ -128,6 +167,8 @@ class SoloffModel(Model):
         self.exps = [tuple(int(v) for v in e) for e in p["exponents"]]
         self.coef = np.asarray(p["coef"], float)
         self.sigma = np.asarray(p["sigma_px"], float)
+        self.noise_poly = (np.column_stack([self.sigma ** 2, np.zeros((4, 2))]) if p.get("noise_poly") is None
+                           else np.asarray(p["noise_poly"], float))
         self.gram_inverse = [np.asarray(g, float) for g in p["gram_inverse"]]
         s = p["start"]
         self.start = {"centre_px": np.asarray(s["centre_px"], float), "scale_px": np.asarray(s["scale_px"], float),
@@ -166,7 +207,7 @@ class SoloffModel(Model):
             if best[1] >= n_z:
                 raise SlmlabError(f"a degree of {best[1]} in Z needs more than {best[1]} distinct depths; the set has "
                                   f"{n_z}", cal.path)
-        p = fit_soloff(world, w, *best)
+        p = fit_soloff(world, w, *best, dots=_dot_labels(pts))
         model = cls(p, options={"degree": list(best), "degree_chosen_by": "held-out positions" if degree is None
                                 else "user", "mode": mode},
                     calibration={"held_out_rms_mm_by_degree": {f"{a},{b}": [float(v) for v in e]
@@ -215,10 +256,12 @@ class SoloffModel(Model):
                 out[row] *= p[2, k]
         return out
 
-    def _evaluate(self, x: np.ndarray, wt: np.ndarray):
-        """Image coordinates ``(4, n)`` and weighted Jacobian ``(3, 4, n)`` at normalised points ``(3, n)``."""
+    def _evaluate(self, x: np.ndarray):
+        """Image coordinates ``(4, n)``, weights ``(4, n)`` (one over one point's σ at its depth) and the
+        weighted Jacobian ``(3, 4, n)`` at normalised points ``(3, n)``."""
         f = self._stacked() @ self._monomials(x)
-        return f[0:4], f[4:16].reshape(3, 4, -1) * wt[None, :, None]
+        wt = 1.0 / _noise_sigma(self.noise_poly, x[2])
+        return f[0:4], wt, f[4:16].reshape(3, 4, -1) * wt[None]
 
     def _solve(self, w: np.ndarray, max_iterations: int = 8, tolerance: float = 1e-4):
         """Normalised world points ``(3, n)`` by weighted Gauss–Newton on the four equations, from the
@@ -227,11 +270,10 @@ class SoloffModel(Model):
         s = self.start
         x = np.ascontiguousarray(((_quadratic(w, s["centre_px"], s["scale_px"]) @ s["coef"] - self.centre)
                                   / self.scale).T)
-        wt = 1.0 / self.sigma
         wT = np.ascontiguousarray(w.T)
         for _ in range(max_iterations):
-            f, j = self._evaluate(x, wt)
-            r = (wT - f) * wt[:, None]
+            f, wt, j = self._evaluate(x)
+            r = (wT - f) * wt
             step = _solve3(j, r)
             x += step
             if np.abs(step).max() < tolerance:
@@ -246,17 +288,19 @@ class SoloffModel(Model):
         return out
 
     def uncertainty(self, w: np.ndarray) -> np.ndarray:
-        """1σ ``(n, 3)`` [mm]: the image coordinates' scatter (the calibration's residual σ per coordinate)
-        through the Jacobian, ``(JᵀWJ)⁻¹``, plus the coefficients' uncertainty carried the same way."""
+        """1σ ``(n, 3)`` [mm]: one point's scatter at its depth (measured within dots on the calibration set)
+        through the Jacobian, ``(JᵀWJ)⁻¹``, plus the coefficients' uncertainty carried the same way (with the
+        calibration's whole residual scatter, the plate's own errors included)."""
         w = np.atleast_2d(np.asarray(w, float))
         x = self._solve(w)
-        _, j = self._evaluate(x, 1.0 / self.sigma)
+        _, wt, j = self._evaluate(x)
         jac = j.transpose(2, 1, 0)                                       # (n, 4, 3), weighted
         cov = np.linalg.inv(np.einsum("nik,nil->nkl", jac, jac))         # normalised units, noise part
         g = np.einsum("nkl,nil->nki", cov, jac)                          # (n, 3, 4): dx per weighted residual
         a = self._monomials(x).T
         q = np.stack([np.einsum("ni,ij,nj->n", a, self.gram_inverse[c], a) for c in (0, 1)], axis=1)
-        var = np.diagonal(cov, axis1=1, axis2=2) + np.einsum("nki,ni->nk", g ** 2, np.repeat(q, 2, axis=1))
+        cal = np.repeat(q, 2, axis=1) * (self.sigma[None, :] * wt.T) ** 2   # in weighted units
+        var = np.diagonal(cov, axis1=1, axis2=2) + np.einsum("nki,ni->nk", g ** 2, cal)
         return np.sqrt(var) * self.scale
 
     def describe(self) -> str:
@@ -270,12 +314,20 @@ class SoloffModel(Model):
     def parameters_dict(self) -> dict:
         return {"centre_mm": self.centre.tolist(), "scale_mm": self.scale.tolist(),
                 "exponents": [list(e) for e in self.exps], "coef": self.coef.tolist(),
-                "sigma_px": self.sigma.tolist(), "gram_inverse": [g.tolist() for g in self.gram_inverse],
+                "sigma_px": self.sigma.tolist(), "noise_poly": self.noise_poly.tolist(),
+                "gram_inverse": [g.tolist() for g in self.gram_inverse],
                 "start": {k: v.tolist() for k, v in self.start.items()}}
 
     @classmethod
     def from_parameters(cls, parameters, calibration, options):
         return cls(parameters, calibration=calibration, options=options)
+
+
+def _dot_labels(pts) -> np.ndarray:
+    """One label per row: its dot (``row, col``) on its sequence's plate."""
+    from .linefit import point_keys
+
+    return point_keys(pts["row"], pts["col"]).astype(str) + ":" + pts["sequence"].astype(str).to_numpy()
 
 
 def _solve3(j: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -307,7 +359,7 @@ def _held_out(pts, world, w, options) -> dict:
         errs = []
         for train, held in folds:
             try:
-                p = fit_soloff(world[train], w[train], *d)
+                p = fit_soloff(world[train], w[train], *d, dots=_dot_labels(pts)[train])
             except SlmlabError:
                 errs = None
                 break
@@ -322,3 +374,45 @@ def _held_out(pts, world, w, options) -> dict:
     if not out:
         raise SlmlabError("too few positions to calibrate the soloff model with held-out planes; give degree=[xy, z]")
     return out
+
+
+@register
+class QuadraticReference(Model):
+    """The plain reference of issue-style comparisons: world coordinates as one least-squares quadratic in
+    the four image coordinates (15 terms each), fitted on dots whose world positions are known."""
+
+    name = "quadratic"
+    summary = ("reference: one least-squares quadratic from the four image coordinates to each world "
+               "coordinate (needs known world positions: a Z stack or a known target)")
+    accuracy_rank = 60
+    units = {"centre_px": "px", "scale_px": "px", "coef": "mm per normalised quadratic monomial"}
+
+    def __init__(self, centre_px, scale_px, coef, **kw):
+        super().__init__(**kw)
+        self.centre_px, self.scale_px = np.asarray(centre_px, float), np.asarray(scale_px, float)
+        self.coef = np.asarray(coef, float)
+
+    @classmethod
+    def fit(cls, cal: CalibrationSet, *, mode: str = "auto", **_):
+        from .direct import world_positions
+
+        pts, world, mode = world_positions(cal, mode)
+        if mode == "moves":
+            raise SlmlabError("the quadratic reference needs each dot's world position (a Z stack or a known "
+                              "target)", cal.path)
+        w = pts[IMAGE_COLUMNS].to_numpy(float)
+        if len(w) <= 15:
+            raise SlmlabError(f"{len(w)} dots seen in both views: the quadratic reference needs more than 15", cal.path)
+        centre, scale = w.mean(axis=0), np.maximum(w.std(axis=0), 1e-9)
+        coef, *_ = np.linalg.lstsq(_quadratic(w, centre, scale), world, rcond=None)
+        return cls(centre, scale, coef, options={"mode": mode})
+
+    def reconstruct(self, w: np.ndarray) -> np.ndarray:
+        return _quadratic(np.atleast_2d(np.asarray(w, float)), self.centre_px, self.scale_px) @ self.coef
+
+    def parameters_dict(self) -> dict:
+        return {"centre_px": self.centre_px.tolist(), "scale_px": self.scale_px.tolist(), "coef": self.coef.tolist()}
+
+    @classmethod
+    def from_parameters(cls, p, calibration, options):
+        return cls(p["centre_px"], p["scale_px"], p["coef"], calibration=calibration, options=options)

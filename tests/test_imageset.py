@@ -1,0 +1,232 @@
+"""Extraction of images as a camera writes them: stage.csv, bit depth, polarity, markers, two-level plates,
+plates larger than the field, OpenCV's boards, and every way a user's images can be wrong (DATA_FORMAT.md)."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+import slmlab
+from slmlab import thirdparty
+from slmlab.extract import extract_image, read_image
+from slmlab.imageset import extract_set
+from slmlab.render import render_plate
+
+from conftest import SHARED
+
+REAL = SHARED / "realdata"
+PIV = REAL / thirdparty.PIV_CHALLENGE_DIR
+
+
+def cli(*args):
+    return subprocess.run([sys.executable, "-m", "slmlab", *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+def one_line_error(r, *fragments):
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert r.stderr.startswith("slmlab: error: ") and r.stderr.count("\n") == 1, r.stderr
+    for f in fragments:
+        assert f in r.stderr, r.stderr
+
+
+def write_image(path, img):
+    ok, buf = cv2.imencode(path.suffix, img)
+    assert ok
+    path.write_bytes(buf.tobytes())
+
+
+@pytest.fixture(scope="module")
+def plate_images():
+    """Three positions of the 7 × 7 plate, rendered, with their truth."""
+    m = slmlab.preset("paper")
+    return [render_plate(m, m.moving_plate, (0.1 * k, -0.05 * k, -0.2 * k), seed=k) for k in range(3)]
+
+
+def make_set(d, plate_images, *, ext=".png", convert=lambda img: img, plate=None):
+    """A set folder whose stage.csv names the images (left = right = the same render, shifted)."""
+    d.mkdir()
+    (d / "cam").mkdir()
+    rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+    for k, (img, _) in enumerate(plate_images, 1):
+        for side, im in (("l", img), ("r", np.roll(img, 7, axis=1))):
+            write_image(d / "cam" / f"{k}_{side}{ext}", convert(im))
+        rows.append(f"Z,{k},0,0,{-0.2 * (k - 1):g},cam/{k}_l{ext},cam/{k}_r{ext}")
+    (d / "stage.csv").write_text("\n".join(rows) + "\n")
+    meta = {"format": "slmlab-calibration/1", "image_size_px": [2048, 2048],
+            "plates": {"moving": plate or {"rows": 7, "cols": 7, "pitch_mm": 0.3, "dot_diameter_mm": 0.15}}}
+    (d / "meta.json").write_text(json.dumps(meta))
+    return d
+
+
+def test_sixteen_bit_tiffs_named_in_stage_csv_give_the_same_dots_as_pngs(tmp_path, plate_images):
+    png, _ = extract_set(make_set(tmp_path / "png", plate_images), progress=False)
+    tif, _ = extract_set(make_set(tmp_path / "tif", plate_images, ext=".tif",
+                                  convert=lambda im: im.astype(np.uint16) * 257), progress=False)
+    assert len(png) == len(tif) == 3 * 49
+    diff = png[["wl1", "wl2", "wr1", "wr2"]].to_numpy() - tif[["wl1", "wl2", "wr1", "wr2"]].to_numpy()
+    assert np.abs(diff).max() < 1e-3      # the same grey levels, scaled: the same centres
+    truth = plate_images[0][1].set_index(["row", "col"])
+    first = png[png["position"] == 1].set_index(["row", "col"])
+    e = first[["wl1", "wl2"]].to_numpy() - truth.loc[first.index, ["w1", "w2"]].to_numpy()
+    assert np.sqrt(np.mean(e ** 2)) < 0.03
+
+
+def test_bright_dots_are_recognised_from_the_image_or_the_plate(tmp_path, plate_images):
+    img, truth = plate_images[1]
+    for dark in (None, False):
+        t = extract_image(255 - img, 7, 7, dark=dark).table.merge(truth, on=["row", "col"])
+        assert len(t) == 49
+        assert np.sqrt(np.mean(np.r_[t["w1_x"] - t["w1_y"], t["w2_x"] - t["w2_y"]] ** 2)) < 0.03
+    plate = {"rows": 7, "cols": 7, "pitch_mm": 0.3, "dot_diameter_mm": 0.15, "dots": "bright"}
+    pts, _ = extract_set(make_set(tmp_path / "bright", plate_images, convert=lambda im: 255 - im, plate=plate),
+                         progress=False)
+    assert len(pts) == 3 * 49
+
+
+BAD_INPUT = {
+    "missing image": (lambda d: (d / "cam" / "2_r.png").unlink(), ["2_r.png", "not found"]),
+    "unreadable image": (lambda d: (d / "cam" / "1_l.png").write_bytes(b"\x89PNG\r\n\x1a\n broken"), ["1_l.png", "cannot be read"]),
+    "images of different sizes": (lambda d: write_image(d / "cam" / "3_l.png", np.full((900, 900), 200, np.uint8)),
+                                  ["3_l.png", "one size"]),
+    "an image with no dots": (lambda d: write_image(d / "cam" / "2_l.png", np.full((2048, 2048), 200, np.uint8)),
+                              ["2_l.png", "no dots found", "dark or bright"]),
+    "a plate larger than the field without markers": (
+        lambda d: (d / "meta.json").write_text((d / "meta.json").read_text().replace('"rows": 7, "cols": 7, ', "")),
+        ["cannot number the dots", "markers"]),
+    "image size unlike meta.json": (
+        lambda d: (d / "meta.json").write_text((d / "meta.json").read_text().replace("[2048, 2048]", "[1024, 1024]")),
+        ["image_size_px"]),
+    "a stage.csv row without images": (
+        lambda d: (d / "stage.csv").write_text((d / "stage.csv").read_text().replace("cam/3_l.png,cam/3_r.png", ",")),
+        ["stage.csv", "row 4"]),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUT), ids=list(BAD_INPUT))
+def test_bad_images_are_one_line_errors_and_nothing_is_written(case, tmp_path, plate_images):
+    d = make_set(tmp_path / "set", plate_images)
+    (d / "points.csv").write_text("keep me\n")
+    corrupt, fragments = BAD_INPUT[case]
+    corrupt(d)
+    one_line_error(cli("extract", d), *fragments)
+    assert (d / "points.csv").read_text() == "keep me\n"
+
+
+# ----------------------------------------------------------------------------------- the real case E images
+@pytest.fixture(scope="module")
+def case_e(tmp_path_factory):
+    if not PIV.exists():
+        pytest.skip("../shared/realdata/ (PIV Challenge case E) is not present")
+    d = thirdparty.pivchallenge_image_set(PIV, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
+    points, notes = extract_set(d, progress=False)
+    return d, points, notes
+
+
+def test_case_e_images_meet_the_extraction_targets(case_e):
+    _, pts, notes = case_e
+    picks = thirdparty.pivchallenge_picks(PIV, common=False)
+    found, diffs, total = 0, [], 0
+    for side, u, v in (("l", "u1_px", "v1_px"), ("r", "u2_px", "v2_px")):
+        p = picks.dropna(subset=[u]).merge(pts.dropna(subset=[f"w{side}1"]), how="left",
+                                            left_on=["X_mm", "Y_mm", "Z_mm"], right_on=["x_mm", "y_mm", "stage_z_mm"])
+        d = np.hypot(p[u] - p[f"w{side}1"], p[v] - p[f"w{side}2"])
+        ok = d < 1.5
+        total += len(p)
+        found += int(ok.sum())
+        diffs.append(np.r_[(p[u] - p[f"w{side}1"])[ok], (p[v] - p[f"w{side}2"])[ok]])
+    diff = np.concatenate(diffs)
+    assert found / total >= 0.95, (found, total)
+    assert np.sqrt(np.mean(diff ** 2)) <= 0.35
+    per_image = pd.concat([pts.groupby("position")[c].count() for c in ("wl1", "wr1")])
+    assert per_image.min() >= 20 and len(per_image) == 14
+    assert any("square and triangle" in n for n in notes)
+
+
+def test_case_e_numbering_is_one_across_the_stack_and_both_views(case_e):
+    _, pts, _ = case_e
+    # each dot's track through the stack is a straight line in each view: a misnumbered image would jump a pitch
+    for side in "lr":
+        for _, g in pts.dropna(subset=[f"w{side}1"]).groupby(["row", "col"]):
+            if len(g) >= 3:
+                for c in (f"w{side}1", f"w{side}2"):
+                    fit = np.polyfit(g["stage_z_mm"], g[c], 1)
+                    assert np.abs(np.polyval(fit, g["stage_z_mm"]) - g[c]).max() < 1.0
+    # the two levels alternate by rows, and every dot has one plate position in every image
+    assert set(pts["level"]) == {0, 1}
+    assert (pts.groupby(["row", "col"])[["x_mm", "y_mm", "z_mm"]].nunique() == 1).all().all()
+    assert np.allclose(pts.loc[pts["level"] == 1, "z_mm"], -3.0)
+
+
+def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case_e, tmp_path):
+    d, pts, _ = case_e
+    src = read_image(PIV / "Camera_01" / "E_camera_1_z_4.tif")
+    img = src.copy()
+    for x, y in ((219, 721), (309, 815)):            # paint out the square and the triangle
+        cv2.circle(img, (x, y), 30, 0, -1)
+    cam = tmp_path / "E_camera_1_z_4_no_markers.tif"
+    write_image(cam, img)
+    s = tmp_path / "set"
+    shutil.copytree(d, s)
+    stage = (s / "stage.csv").read_text().splitlines()
+    stage = [line.replace(line.split(",")[5], str(cam)) if line.startswith("Z,4,") else line for line in stage]
+    (s / "stage.csv").write_text("\n".join(stage) + "\n")
+    tracked, notes = extract_set(s, progress=False)
+    assert any("tracked" in n for n in notes), notes
+    a = pts[pts["position"] == 4].set_index(["row", "col"])["wl1"].dropna()
+    b = tracked[tracked["position"] == 4].set_index(["row", "col"])["wl1"].dropna()
+    common = a.index.intersection(b.index)
+    assert len(common) >= 55 and np.abs(a[common] - b[common]).max() < 0.05
+
+
+# ----------------------------------------------------------------------------------- other real samples
+@pytest.mark.skipif(not (REAL / thirdparty.DICE_DIR).exists(), reason="DICe images not present")
+def test_dice_dot_target_pairs_through_extract(tmp_path):
+    pts, notes = extract_set(thirdparty.dice_image_set(REAL / thirdparty.DICE_DIR, tmp_path / "dice"), progress=False)
+    assert pts["position"].nunique() == 14 and any("donut" in n for n in notes)
+    for _, g in pts.dropna(subset=["wl1", "wr1"]).groupby("position"):
+        assert len(g) >= 60
+        _, inl = cv2.findFundamentalMat(g[["wl1", "wl2"]].to_numpy(), g[["wr1", "wr2"]].to_numpy(), cv2.FM_RANSAC, 2.0, 0.999)
+        assert inl.mean() >= 0.95   # the same [row, col] in both views is the same dot
+
+
+@pytest.mark.skipif(not (REAL / thirdparty.CHESSBOARD_DIR).exists(), reason="OpenCV chessboard images not present")
+def test_opencv_chessboard_pairs_through_extract(tmp_path):
+    pts, _ = extract_set(thirdparty.chessboard_image_set(REAL / thirdparty.CHESSBOARD_DIR, tmp_path / "c"), progress=False)
+    counts = pts.dropna(subset=["wl1", "wr1"]).groupby("position").size()
+    assert len(counts) == 13 and (counts == 54).all()
+
+
+def test_a_virtual_charuco_stack_is_found_numbered_and_calibrates_to_the_floor(tmp_path):
+    from slmlab import study
+    from slmlab.render import board_orientation, render_board_set
+    from slmlab.simulate import Session, stage_origin, zstack_frame
+
+    m = study.perfect_stage(slmlab.preset("paper"))
+    board = {"squares": [16, 12], "square_mm": 0.3, "marker_mm": 0.22, "dictionary": "DICT_6X6_250", "legacy": True}
+    sets = {}
+    for name, z, seed in (("cal", np.linspace(-0.6, 0.6, 7), 1), ("val", [-0.45, 0.15, 0.45], 2)):
+        d = render_board_set(tmp_path / name, m, board, z, seed=seed)
+        pts, notes = extract_set(d, progress=False)
+        truth = pd.read_csv(d / "truth.csv")
+        merged = pts.merge(truth, on=["sequence", "position", "row", "col"], suffixes=("", "_t"))
+        assert len(merged) == len(truth)                          # every corner, in both views, numbered by its id
+        e = np.r_[[merged[c] - merged[c + "_t"] for c in ("wl1", "wl2", "wr1", "wr2")]].ravel()
+        assert np.sqrt(np.mean(e ** 2)) < 0.05 and np.abs(e).max() < 0.3
+        slmlab.io.write_csv(d / "points.csv", pts)
+        sets[name] = (slmlab.read_set(d), merged)
+    cal, (_, val) = sets["cal"][0], sets["val"]
+    assert cal.known_target
+    model = slmlab.calibrate(cal)
+    frame = zstack_frame(m, orientation=board_orientation(m))
+    origin = stage_origin(m, Session(positions=(0, 0, 0), grid=False))
+    w = val[["wl1", "wl2", "wr1", "wr2"]].to_numpy()
+    truth = val[["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ frame.T
+    floor = m.microscope_to_stage(m.triangulate(w), origin) @ frame.T - truth
+    ours = model.reconstruct(w) - truth
+    rms = lambda e: np.sqrt(np.mean((e - e.mean(axis=0)) ** 2, axis=0))  # noqa: E731
+    assert (rms(ours) <= 1.2 * rms(floor)).all(), (rms(ours), rms(floor))
