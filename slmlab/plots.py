@@ -17,7 +17,8 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dots_on_image", "plot_display", "plot_display_quad", "plot_virtual_lines", "plot_disparity",
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
-           "plot_leave_one_plane_out", "plot_floor_ratios"]
+           "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
+           "plot_model_comparison"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -540,5 +541,70 @@ def plot_floor_ratios(table, ax=None, *, by=("microscope", "calibration")):
     ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
     ax.set_xticks(range(3), ["X", "Y", "Z"])
     ax.set_ylabel("RMS displacement error / noise floor")
+    ax.legend(fontsize=7)
+    return ax
+
+
+# ------------------------------------------------------------------------------------------ real rigs (notebook 10)
+def plot_pick_differences(diffs, axes=None, *, limit_px: float = 1.5):
+    """Picked minus extracted centre ``(du, dv)`` [px] of every matched dot, one panel per view, with the RMS
+    circle (solid) and the matching radius (dotted)."""
+    views = list(dict.fromkeys(diffs["view"]))
+    if axes is None:
+        _, axes = new_figure(1, len(views), width_in=3.4 * len(views), height_in=3.3, sharex=True, sharey=True)
+    axes = np.atleast_1d(axes)
+    t = np.linspace(0, 2 * np.pi, 200)
+    for ax, v in zip(axes, views):
+        d = diffs[diffs["view"] == v]
+        ax.plot(d["du_px"], d["dv_px"], ".", ms=3, alpha=0.6)
+        rms = float(np.sqrt(np.mean(np.r_[d["du_px"], d["dv_px"]] ** 2)))
+        ax.plot(rms * np.cos(t), rms * np.sin(t), "k-", lw=0.8, label=f"RMS {rms:.2f} px")
+        ax.plot(limit_px * np.cos(t), limit_px * np.sin(t), "k:", lw=0.8, label=f"{limit_px} px")
+        ax.set_aspect("equal")
+        ax.set_title(f"{v} view ({len(d)} dots)", fontsize=10)
+        ax.set_xlabel("Δu [px]")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[0].set_ylabel("Δv [px]")
+    return axes
+
+
+def plot_level_map(image, table, ax=None, *, title: str = "", reduce: int = 2):
+    """One image of a two-level plate with its extracted dots, coloured by level (0 blue, 1 orange); the
+    origin dot (``x_mm = y_mm = 0``) ringed. ``table``: ``w1, w2, level`` and optionally ``x_mm, y_mm``."""
+    import cv2
+
+    ax = _ax(ax)
+    small = cv2.resize(image, (image.shape[1] // reduce, image.shape[0] // reduce), interpolation=cv2.INTER_AREA)
+    lo, hi = np.percentile(small, [1, 99.5])
+    ax.imshow(small, cmap="gray", vmin=lo, vmax=hi, extent=(-0.5, image.shape[1] - 0.5, image.shape[0] - 0.5, -0.5))
+    for lv, colour in ((0, "tab:blue"), (1, "tab:orange")):
+        d = table[table["level"] == lv]
+        ax.plot(d["w1"], d["w2"], "o", ms=4, mfc="none", mec=colour, mew=1.2, label=f"level {lv} ({len(d)})")
+    if {"x_mm", "y_mm"} <= set(table.columns):
+        o = table[(table["x_mm"] == 0) & (table["y_mm"] == 0)]
+        ax.plot(o["w1"], o["w2"], "o", ms=11, mfc="none", mec="tab:red", mew=1.5, label="origin dot")
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, loc="lower right")
+    return ax
+
+
+def plot_model_comparison(table, ax=None, *, reference: str | None = None, title: str = ""):
+    """RMS error [µm] per coordinate of each model (a row of ``table``: ``model, X_um, Y_um, Z_um``), one group
+    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group."""
+    ax = _ax(ax)
+    n = len(table)
+    width = 0.8 / n
+    for i, (_, row) in enumerate(table.iterrows()):
+        ax.bar(np.arange(3) + (i - (n - 1) / 2) * width, [row[f"{c}_um"] for c in "XYZ"], width, label=row["model"])
+    if reference is not None:
+        ref = table.set_index("model").loc[reference]
+        for k, c in enumerate("XYZ"):
+            ax.plot([k - 0.45, k + 0.45], [ref[f"{c}_um"]] * 2, "k:", lw=1)
+    ax.set_yscale("log")
+    ax.set_xticks(range(3), ["X", "Y", "Z"])
+    ax.set_ylabel("RMS error after one offset [µm]")
+    ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7)
     return ax
