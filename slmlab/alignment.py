@@ -9,11 +9,16 @@ Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`s
 * **Offset δw2** (Eqs 10–12): the mean of ``w2_l − w2_r`` over all points and positions, per sequence (X, Y, Z),
   then the mean of the three; ``w2_r ← w2_r + δw2``.
 * **Disparity** ``D = w1_r − w1_l``. Along the X sequence (constant Z) it is a parabola in ``w1`` (Fig 7a).
-* **Disparity distortion** (Eqs 13–16), decision on the garbled text: per grid point a line
-  ``D0 ≈ k_D·w1_l + b_D`` along its X path; the residuals of all samples fitted by one quadratic
-  ``aD·w1_l² + bD·w1_l + cD``; corrected ``D = D0 − (aD·w1_l² + bD·w1_l + cD)``, the sign checked by its
-  effect (the corrected paths must be straighter). Also the identifiable joint fit
-  ``D0 = d[i,j] + aD·w1² + bD·w1`` with one constant per grid point.
+* **Disparity distortion** (Eqs 13–16; METHOD.md §2, the revised reading): the per-point lines and the
+  quadratic are fitted together, ``D0[i,j,n] = d[i,j] + aD·w1_l² + bD·w1_l`` over the X sequence (one
+  constant per grid point, ``aD`` and ``bD`` shared: the identifiable joint fit), and ``cD = bD²/(4·aD)``, so
+  that the correction ``D = D0 − (aD·w1_l² + bD·w1_l + cD)`` is a pure parabola about its vertex
+  ``w0 = −bD/(2·aD)`` and vanishes there (the paper's Table 2 obeys this to 0.1 %). The sign is checked by its
+  effect: the corrected paths must be straight (Fig 8).
+* The first reading, kept for comparison only (``disparity_method="single-pass"``): per grid point a line
+  ``D0 ≈ k_D·w1_l + b_D`` along its X path, then one quadratic through all their residuals. The lines absorb
+  the straight part of each dot's own stretch of the parabola, so one pass recovers only part of the
+  curvature (:func:`recovered_share`).
 """
 
 from __future__ import annotations
@@ -27,11 +32,13 @@ from .errors import SlmlabError
 from .io import CalibrationSet
 from .linefit import group_lines, point_keys
 
-__all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "fit_disparity_paper",
-           "fit_disparity_joint", "path_straightness", "AlignmentResult", "estimate_alignment", "sequence_coordinates",
-           "disparity_table"]
+__all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "DISPARITY_METHODS",
+           "fit_disparity_single_pass", "fit_disparity_joint", "path_straightness", "AlignmentResult",
+           "estimate_alignment", "sequence_coordinates", "disparity_table", "recovered_share", "vertex_check"]
 
 MIN_POSITIONS = 3
+#: the disparity estimators: the revised reading of Eqs 13–16 (the default), and the first one (for comparison)
+DISPARITY_METHODS = ("joint", "single-pass")
 
 
 def rotate(w1, w2, angle_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -94,13 +101,13 @@ class DisparityCorrection:
     aD, bD, cD_px
         [1/px], [-], [px].
     method
-        ``'paper'`` or ``'joint'``.
+        ``'joint'`` (METHOD.md §2, the default) or ``'single-pass'`` (the first reading).
     """
 
     aD: float
     bD: float
     cD_px: float
-    method: str = "paper"
+    method: str = "joint"
 
     def apply(self, d0, w1_left) -> np.ndarray:
         """Corrected disparity [px]."""
@@ -117,9 +124,10 @@ def path_straightness(df: pd.DataFrame, disparity: np.ndarray) -> float:
     return float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan")
 
 
-def fit_disparity_paper(xseq: pd.DataFrame) -> DisparityCorrection:
-    """The paper's procedure: per-point lines along the X paths, one quadratic through all their residuals;
-    the sign that straightens the paths is kept (Eqs 13–16)."""
+def fit_disparity_single_pass(xseq: pd.DataFrame) -> DisparityCorrection:
+    """The first reading of Eqs 13–16 (for comparison only): per-point lines along the X paths, one quadratic
+    through all their residuals; the sign that straightens the paths is kept. It recovers only part of the
+    curvature (:func:`recovered_share`)."""
     d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
     w = xseq["wl1"].to_numpy()
     res = group_lines(point_keys(xseq["row"], xseq["col"]), w, d0, min_n=MIN_POSITIONS).residuals
@@ -127,15 +135,18 @@ def fit_disparity_paper(xseq: pd.DataFrame) -> DisparityCorrection:
     if ok.sum() < 3:
         raise SlmlabError("too few X-sequence samples to fit the disparity distortion (§4, Eq 15)")
     aD, bD, cD = np.polyfit(w[ok], res[ok], 2)
-    plus = DisparityCorrection(float(aD), float(bD), float(cD), "paper")
-    minus = DisparityCorrection(-float(aD), -float(bD), -float(cD), "paper")
+    plus = DisparityCorrection(float(aD), float(bD), float(cD), "single-pass")
+    minus = DisparityCorrection(-float(aD), -float(bD), -float(cD), "single-pass")
     s_plus = path_straightness(xseq, plus.apply(d0, w))
     s_minus = path_straightness(xseq, minus.apply(d0, w))
     return plus if s_plus <= s_minus else minus
 
 
 def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
-    """The identifiable joint fit ``D0 = d[i,j] + aD·w1² + bD·w1`` (one constant per grid point)."""
+    """The disparity distortion by METHOD.md §2's reading of Eqs 13–16: the joint fit
+    ``D0 = d[i,j] + aD·w1² + bD·w1`` (one constant per grid point, ``aD, bD`` shared), and
+    ``cD = bD²/(4·aD)``: the correction vanishes at the parabola's vertex. Of the two signs, the one that
+    straightens the paths is kept (it is the fitted one: the joint fit removes the parabola)."""
     d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
     w = xseq["wl1"].to_numpy()
     keys = xseq[["row", "col"]].to_numpy()
@@ -150,7 +161,42 @@ def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
     coef, *_ = np.linalg.lstsq(m, d0, rcond=None)
     a, b1 = coef[n_pts], coef[n_pts + 1]
     # a (w - w0)^2 + b1 (w - w0) = a w^2 + (b1 - 2 a w0) w + const (the constant goes to the d[i,j])
-    return DisparityCorrection(float(a), float(b1 - 2 * a * w0), 0.0, "joint")
+    a, b = float(a), float(b1 - 2 * a * w0)
+    if a == 0:
+        raise SlmlabError("the X sequence's disparity shows no curvature: the joint fit of Eqs 13-16 has no vertex")
+    plus = DisparityCorrection(a, b, b * b / (4 * a), "joint")
+    minus = DisparityCorrection(-a, -b, -b * b / (4 * a), "joint")
+    s_plus, s_minus = path_straightness(xseq, plus.apply(d0, w)), path_straightness(xseq, minus.apply(d0, w))
+    return plus if s_plus <= s_minus else minus
+
+
+def recovered_share(xseq: pd.DataFrame) -> dict:
+    """How much of the disparity's curvature one pass recovers (METHOD.md §2): the single pass's ``aD`` over
+    the joint fit's, beside the pooled-regression attenuation ``Var(t²) / (Var(t²) + 4·σm²·σt²)`` for the
+    dots' path offsets ``t = w1 − m`` about their path centres ``m`` (pooled over dots), and the ratio of the
+    plate's width on the image (the spread of the path centres, ``2·σm``) to a path's length (``2·√3·σt``,
+    a uniform path)."""
+    w = xseq["wl1"].to_numpy(float)
+    keys = xseq[["row", "col"]].to_numpy()
+    _, point = np.unique(keys, axis=0, return_inverse=True)
+    point = point.ravel()
+    m = (np.bincount(point, w) / np.bincount(point))[point]
+    t = w - m
+    var_t2 = np.var(t * t)
+    s_m2, s_t2 = np.var(np.unique(m)), np.mean(t * t)
+    predicted = var_t2 / (var_t2 + 4 * s_m2 * s_t2)
+    single, joint = fit_disparity_single_pass(xseq), fit_disparity_joint(xseq)
+    return {"recovered": single.aD / joint.aD, "predicted": float(predicted),
+            "plate_width_over_path_length": float(np.sqrt(s_m2) / np.sqrt(3 * s_t2)),
+            "aD_single_pass": single.aD, "aD_joint": joint.aD}
+
+
+def vertex_check(aD: float, bD: float, cD_px: float) -> dict:
+    """``cD`` against ``bD²/(4·aD)``, the value at which the correction vanishes at the parabola's vertex
+    (METHOD.md §2): both, their relative difference and the vertex ``w0 = −bD/(2·aD)`` [px]."""
+    at_vertex = bD * bD / (4 * aD)
+    return {"cD_px": cD_px, "bD2_over_4aD_px": at_vertex, "relative_difference": cD_px / at_vertex - 1,
+            "vertex_px": -bD / (2 * aD)}
 
 
 @dataclass
@@ -164,9 +210,10 @@ class AlignmentResult:
     dw2_px, dw2_by_sequence, dw2_std_px
         vertical offset of the right view [px], per sequence, and the spread of ``w2_l − w2_r`` [px].
     disparity
-        ``{'paper': DisparityCorrection, 'joint': DisparityCorrection}``.
+        ``{'joint': DisparityCorrection, 'single-pass': DisparityCorrection}``; ``method`` names the one the
+        chain uses.
     straightness
-        RMS of the per-point disparity lines along X [px]: ``raw``, ``paper``, ``joint``.
+        RMS of the per-point disparity lines along X [px]: ``raw``, ``joint``, ``single-pass``.
     """
 
     alpha_rad: float
@@ -176,6 +223,7 @@ class AlignmentResult:
     dw2_std_px: float
     disparity: dict
     straightness: dict = field(default_factory=dict)
+    method: str = "joint"
 
     def align(self, w: np.ndarray) -> np.ndarray:
         """Rotate the right view by α and shift it by δw2 (``(n, 4)`` corrected coordinates → aligned)."""
@@ -185,26 +233,31 @@ class AlignmentResult:
         return w
 
     def parameters(self) -> dict:
-        d = self.disparity["paper"]
+        d = self.disparity[self.method]
         return {"alpha_deg": float(np.degrees(self.alpha_rad)), "dw2_px": self.dw2_px, "aD": d.aD, "bD": d.bD,
                 "cD_px": d.cD_px}
 
     def table(self) -> pd.DataFrame:
-        """Table 2 layout: α, δw2, aD, bD, cD by the paper's procedure, and the joint fit's aD, bD."""
-        p, j = self.disparity["paper"], self.disparity["joint"]
+        """Table 2 layout: α, δw2, aD, bD, cD (the joint fit, METHOD.md §2), and the single pass's aD, bD, cD
+        for comparison."""
+        j, p = self.disparity["joint"], self.disparity["single-pass"]
         return pd.DataFrame([
             {"parameter": "alpha_deg", "value": np.degrees(self.alpha_rad), "spread": np.degrees(self.alpha_std_rad)},
             {"parameter": "dw2_px", "value": self.dw2_px, "spread": self.dw2_std_px},
-            {"parameter": "aD", "value": p.aD, "spread": np.nan},
-            {"parameter": "bD", "value": p.bD, "spread": np.nan},
-            {"parameter": "cD_px", "value": p.cD_px, "spread": np.nan},
-            {"parameter": "aD (joint fit)", "value": j.aD, "spread": np.nan},
-            {"parameter": "bD (joint fit)", "value": j.bD, "spread": np.nan},
+            {"parameter": "aD", "value": j.aD, "spread": np.nan},
+            {"parameter": "bD", "value": j.bD, "spread": np.nan},
+            {"parameter": "cD_px", "value": j.cD_px, "spread": np.nan},
+            {"parameter": "aD (single pass)", "value": p.aD, "spread": np.nan},
+            {"parameter": "bD (single pass)", "value": p.bD, "spread": np.nan},
+            {"parameter": "cD_px (single pass)", "value": p.cD_px, "spread": np.nan},
         ])
 
 
-def estimate_alignment(cal: CalibrationSet, correct) -> AlignmentResult:
-    """§4 on a calibration set: ``correct`` is §3's correction ``(n, 4) → (n, 4)``."""
+def estimate_alignment(cal: CalibrationSet, correct, method: str = "joint") -> AlignmentResult:
+    """§4 on a calibration set: ``correct`` is §3's correction ``(n, 4) → (n, 4)``; ``method`` the disparity
+    estimator the chain uses (both are fitted and reported)."""
+    if method not in DISPARITY_METHODS:
+        raise SlmlabError(f"unknown disparity method {method!r}; use one of {', '.join(DISPARITY_METHODS)}")
     seqs = {s: sequence_coordinates(cal, s, correct) for s in ("X", "Y", "Z")}
     if len(seqs["X"]) == 0:
         raise SlmlabError("the calibration set has no X sequence seen in both views: §4 needs one", cal.path)
@@ -217,17 +270,19 @@ def estimate_alignment(cal: CalibrationSet, correct) -> AlignmentResult:
     dw2, per, dw2_std = estimate_dw2(rotated)
     xs = rotated["X"].copy()
     xs["wr2"] += dw2
-    paper = fit_disparity_paper(xs)
     joint = fit_disparity_joint(xs)
+    single = fit_disparity_single_pass(xs)
     d0, w = (xs["wr1"] - xs["wl1"]).to_numpy(), xs["wl1"].to_numpy()
-    straight = {"raw": path_straightness(xs, d0), "paper": path_straightness(xs, paper.apply(d0, w)),
-                "joint": path_straightness(xs, joint.apply(d0, w))}
-    return AlignmentResult(alpha, alpha_std, dw2, per, dw2_std, {"paper": paper, "joint": joint}, straight)
+    straight = {"raw": path_straightness(xs, d0), "joint": path_straightness(xs, joint.apply(d0, w)),
+                "single-pass": path_straightness(xs, single.apply(d0, w))}
+    return AlignmentResult(alpha, alpha_std, dw2, per, dw2_std, {"joint": joint, "single-pass": single}, straight,
+                           method)
 
 
 def disparity_table(cal: CalibrationSet, correct, align: AlignmentResult, sequences=("X", "Y")) -> pd.DataFrame:
     """Per sample of the sequences: ``w1_l, w2_l`` [px] of the aligned coordinates, the distorted disparity
-    ``D0`` and the corrected ``D_paper``, ``D_joint`` [px] (Figs 7–8)."""
+    ``D0`` and the corrected ``D_joint`` (the paper's correction, METHOD.md §2) and ``D_single_pass`` [px]
+    (Figs 7–8)."""
     frames = []
     for s in sequences:
         df = sequence_coordinates(cal, s, correct)
@@ -238,5 +293,6 @@ def disparity_table(cal: CalibrationSet, correct, align: AlignmentResult, sequen
         frames.append(pd.DataFrame({
             "sequence": s, "position": df["position"].to_numpy(), "row": df["row"].to_numpy(),
             "col": df["col"].to_numpy(), "w1_l": w[:, 0], "w2_l": w[:, 1], "D0": d0,
-            "D_paper": align.disparity["paper"].apply(d0, w[:, 0]), "D_joint": align.disparity["joint"].apply(d0, w[:, 0])}))
+            "D_joint": align.disparity["joint"].apply(d0, w[:, 0]),
+            "D_single_pass": align.disparity["single-pass"].apply(d0, w[:, 0])}))
     return pd.concat(frames, ignore_index=True)

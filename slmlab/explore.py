@@ -105,8 +105,9 @@ def microscope_state(*, convergence_deg: float = 13.69, perspective_mm: float = 
     l = m.optics.left
     rows += [("alpha_deg", float(np.degrees(align.alpha_rad)), m.optics.left.rotation_deg - m.optics.right.rotation_deg),
              ("dw2_px", align.dw2_px, np.nan),
-             ("aD (paper procedure)", align.disparity["paper"].aD, np.nan),
-             ("aD (joint fit)", align.disparity["joint"].aD, 2 * (3 * l.decentring_per_mm + l.thin_prism_per_mm) * px)]
+             ("aD (joint fit)", align.disparity["joint"].aD,
+              2 * (3 * l.decentring_per_mm + l.thin_prism_per_mm) * px),
+             ("aD (single pass)", align.disparity["single-pass"].aD, np.nan)]
     table = pd.DataFrame(rows, columns=["parameter", "estimate", "simulator_first_order"])
     return {"microscope": m, "cal": cal, "distortion": dist, "alignment": align,
             "disparity": disparity_table(cal, dist.apply, align, sequences=("X",)), "table": table}

@@ -25,7 +25,8 @@ class PaperModel(Model):
 
     Options of :meth:`fit`: ``scale_estimator`` (``'mean-ratio'``, the paper's, or ``'lstsq'``),
     ``distortion_method`` (``'paper-two-step'``, ``'joint'``, or ``None``: the one with the smaller lattice
-    misfit) and ``disparity_method`` (``'paper'`` or ``'joint'``); all three are named in the model file.
+    misfit) and ``disparity_method`` (``'joint'``, METHOD.md §2, or ``'single-pass'``, the first reading, for
+    comparison); all three are named in the model file.
     """
 
     level: ClassVar[int] = 2
@@ -37,7 +38,7 @@ class PaperModel(Model):
 
     @classmethod
     def fit(cls, cal, *, scale_estimator: str = "mean-ratio", distortion_method: str | None = None,
-            disparity_method: str = "paper", **_):
+            disparity_method: str = "joint", **_):
         params, dist, align = fit_paper(cal, level=cls.level, scale_estimator=scale_estimator,
                                         distortion_method=distortion_method, disparity_method=disparity_method)
         q = dist.quality

@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .alignment import AlignmentResult, DisparityCorrection, estimate_alignment, path_angles, rotate, sequence_coordinates
+from .alignment import (DISPARITY_METHODS, AlignmentResult, DisparityCorrection, estimate_alignment, path_angles,
+                        rotate, sequence_coordinates)
 from .distortion import DistortionResult, ViewCorrection, estimate_distortion
 from .errors import SlmlabError
 from .io import CalibrationSet
@@ -185,11 +186,8 @@ def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(k), float(b)
 
 
-DISPARITY_METHODS = ("paper", "joint")
-
-
 def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "mean-ratio",
-              distortion_method: str | None = None, disparity_method: str = "paper",
+              distortion_method: str | None = None, disparity_method: str = "joint",
               ) -> tuple[PaperParameters, DistortionResult, AlignmentResult]:
     """Fit the paper's chain up to Model ``level`` on a calibration set with ``grid``, X, Y, Z sequences.
 
@@ -200,9 +198,9 @@ def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "me
     distortion_method
         ``'paper-two-step'`` or ``'joint'`` for §3; ``None`` keeps the one with the smaller lattice misfit.
     disparity_method
-        ``'paper'`` (per-point lines, then a quadratic through their residuals: METHOD.md §2, the default) or
-        ``'joint'`` (the identifiable fit with one constant per grid point). The paper's procedure recovers
-        only part of the curvature when the grid points' paths cover different ``w1`` ranges; see notebook 03.
+        ``'joint'`` (METHOD.md §2's reading of Eqs 13–16: lines and quadratic fitted together, ``cD`` at the
+        vertex; the default) or ``'single-pass'`` (the first reading, per-point lines then one quadratic
+        through their residuals, which recovers only part of the curvature: notebook 03), for comparison.
     """
     if disparity_method not in DISPARITY_METHODS:
         raise SlmlabError(f"unknown disparity method {disparity_method!r}; use one of {', '.join(DISPARITY_METHODS)}")
@@ -215,7 +213,7 @@ def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "me
                               "X, Y and Z sequences of at least 2 (better 3 or more) positions", cal.path)
     dist = estimate_distortion(cal.sequence("grid"),
                                methods=("paper-two-step", "joint") if distortion_method is None else (distortion_method,))
-    align = estimate_alignment(cal, dist.apply)
+    align = estimate_alignment(cal, dist.apply, disparity_method)
 
     def chain(df):
         w = dist.apply(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))

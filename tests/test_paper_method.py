@@ -93,7 +93,10 @@ def test_disparity_correction_flattens_the_x_paths():
     a = estimate_alignment(cal, dist.apply)
     noise_d = np.sqrt(2) * SIGMA  # disparity is the difference of two centres
     assert a.straightness["joint"] < 2 * noise_d < 0.1 * a.straightness["raw"]
-    assert a.straightness["paper"] < a.straightness["raw"]  # the sign check did its job
+    assert a.straightness["single-pass"] < a.straightness["raw"]  # the sign check did its job
+    # the correction is a pure parabola about its vertex, as the paper's Table 2 (cD = bD^2 / 4 aD)
+    j = a.disparity["joint"]
+    assert j.cD_px == pytest.approx(j.bD ** 2 / (4 * j.aD), rel=1e-12)
     # the joint fit recovers the physical curvature 2 (3 p1 + s1) · pixel (opposite views add up)
     v = slmlab.preset("paper").optics.left
     assert a.disparity["joint"].aD == pytest.approx(2 * (3 * v.decentring_per_mm + v.thin_prism_per_mm) * 0.003, rel=0.05)
