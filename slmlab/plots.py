@@ -18,7 +18,7 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
            "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
-           "plot_model_comparison"]
+           "plot_model_comparison", "plot_recovered_share"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -606,5 +606,22 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
     ax.set_xticks(range(3), ["X", "Y", "Z"])
     ax.set_ylabel("RMS error after one offset [µm]")
     ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7)
+    return ax
+
+
+def plot_recovered_share(table, ax=None):
+    """The share of the disparity's curvature the single pass recovers against the ratio of the plate's width
+    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression formula of
+    METHOD.md §2)."""
+    ax = _ax(ax)
+    t = table.sort_values("plate_width_over_path_length")
+    ax.plot(t["plate_width_over_path_length"], t["recovered_share"], "o", label="single pass / joint fit (measured)")
+    ax.plot(t["plate_width_over_path_length"], t["predicted_share"], "x", ms=8, color="k",
+            label="Var(t²) / (Var(t²) + 4 σm² σt²)")
+    ax.axhline(1.0, color="0.6", lw=0.8)
+    ax.set_xlabel("plate width / path length on the image")
+    ax.set_ylabel("share of the curvature recovered")
+    ax.set_ylim(0, 1.05)
     ax.legend(fontsize=7)
     return ax

@@ -19,7 +19,7 @@ __all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headlin
            "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
            "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out", "workspace_grid",
            "cross_validation_diff", "subsample_positions", "accuracy_vs_positions", "commanded_frame_limit",
-           "measure_level_offset"]
+           "measure_level_offset", "disparity_recovery", "against_model"]
 
 TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
                 "KZX", "BZX_mm", "KZY", "BZY_mm"]
@@ -229,8 +229,10 @@ def stage_error_budget(microscope: Microscope, n_volume: int, seed: int = 1) -> 
 
 def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 31, seed: int = 1):
     """The default model calibrated from a Z stack alone (a field-filling plate, ``n_planes`` positions over
-    the validation's Z range) beside the same model calibrated on Test 1's three axes, on one volume run.
-    Errors are compared in the Z stack's frame (:func:`slmlab.simulate.zstack_frame`) for the Z-stack model.
+    the validation's Z range) beside the same model calibrated on Test 1's three axes, on one volume run, and
+    the Soloff model alone on the same Z stack (one of the default's candidates; the default chooses between
+    them by held-out planes of the stack, which cannot show the stage's systematic errors).
+    Errors are compared in the Z stack's frame (:func:`slmlab.simulate.zstack_frame`) for the Z-stack models.
     Returns ``(table, zstack_model, val, frame)``: per model, RMS displacement error [µm] and over the floor,
     and the 95 % intervals' coverage [%]."""
     from .models import calibrate
@@ -243,10 +245,12 @@ def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 
     val = _volume_run(microscope, n_volume, seed)
     frame = zstack_frame(mz)
     rows = []
-    for label, model, fr in (("Z stack alone", zmodel, frame), ("X, Y, Z sequences (Test 1)", moves, None)):
+    soloff = calibrate(zcal, "soloff")
+    for label, model, fr in (("Z stack alone", zmodel, frame), ("X, Y, Z sequences (Test 1)", moves, None),
+                             ("Z stack alone, soloff model", soloff, frame)):
         t = volumetric_comparison({label: model}, val, frame=fr).set_index("model").loc[label]
         cov = uncertainty_coverage(model, val, frame=fr)
-        rows.append({"calibration": label, "positions": int(model.calibration["positions"].get("Z", 0)) if label.startswith("Z")
+        rows.append({"calibration": label, "positions": int(model.calibration.get("positions", zmodel.calibration["positions"]).get("Z", 0)) if label.startswith("Z")
                      else int(sum(model.calibration["positions"].get(k, 0) for k in "XYZ")),
                      "model": model.describe(),
                      **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"}, **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"},
@@ -399,3 +403,44 @@ def measure_level_offset(points: pd.DataFrame, model) -> dict:
     return {"offset_mm": float(np.median(use)), "spread_mm": float(np.std(use, ddof=1)) if len(use) > 1 else float("nan"),
             "planes": {int(k): float(v) for k, v in use.items()},
             "dots": {int(k): int(v) for k, v in both["level"].value_counts().sort_index().items()}}
+
+
+def disparity_recovery(microscope: Microscope, cases, seed: int = 1) -> pd.DataFrame:
+    """How much of the disparity's curvature the first reading's single pass recovers (METHOD.md §2), over
+    layouts: each case ``(positions along X, plate pitch [mm])`` is a Test 1 session with that many X
+    positions 0.1 mm apart and the 7 × 7 plate at that pitch. Per case: the ratio of the plate's width to a
+    dot's path length on the image, the single pass's ``aD`` over the joint fit's (recovered), and the
+    pooled-regression attenuation ``Var(t²)/(Var(t²) + 4·σm²·σt²)`` (predicted)."""
+    from dataclasses import replace
+
+    from .alignment import estimate_alignment, recovered_share, sequence_coordinates
+    from .distortion import estimate_distortion
+
+    rows = []
+    for n_x, pitch in cases:
+        m = replace(microscope, moving_plate=replace(microscope.moving_plate, pitch_mm=float(pitch)))
+        cal = simulate_set(m, Session(step_mm=0.1, positions=(int(n_x), 15, 16), name=f"x{n_x}"), seed=seed)
+        dist = estimate_distortion(cal.sequence("grid"))
+        align = estimate_alignment(cal, dist.apply)
+        xs = sequence_coordinates(cal, "X", dist.apply)
+        xs[["wl1", "wl2", "wr1", "wr2"]] = align.align(xs[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
+        r = recovered_share(xs)
+        rows.append({"positions_X": int(n_x), "pitch_mm": float(pitch),
+                     "plate_width_over_path_length": r["plate_width_over_path_length"],
+                     "recovered_share": r["recovered"], "predicted_share": r["predicted"]})
+    return pd.DataFrame(rows)
+
+
+def against_model(t5: pd.DataFrame, reference: str = "paper-m2") -> pd.DataFrame:
+    """Each model of a comparison table (:func:`comparison_table`) against ``reference``, element by element:
+    its largest error and where, the reference's largest error there, their ratio, and how many of the nine
+    elements stay within the reference's maxima."""
+    ref = t5[t5["model"] == reference].set_index("element")["max_abs_mm"]
+    rows = []
+    for model, d in t5[t5["model"] != reference].groupby("model", sort=False):
+        d = d.set_index("element")["max_abs_mm"]
+        worst = d.idxmax()
+        rows.append({"model": model, "worst_element": worst, "worst_max_abs_mm": float(d[worst]),
+                     f"{reference}_max_abs_mm_there": float(ref[worst]), "ratio": float(d[worst] / ref[worst]),
+                     f"elements_within_{reference}": int((d <= ref.reindex(d.index)).sum())})
+    return pd.DataFrame(rows)
