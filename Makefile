@@ -19,8 +19,13 @@ $(STAMP): environment.txt pyproject.toml
 	$(PY) -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
+# the notebooks write into a fresh folder; only when all succeed does it replace figures/ (no stale files,
+# and a failed run leaves figures/ as it was)
 reproduce: $(STAMP)
-	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/figures $(PY) -m slmlab.notebooks --timing .reproduce_seconds --jobs 2 notebooks/*.ipynb
+	rm -rf .figures.new && mkdir .figures.new
+	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/.figures.new $(PY) -m slmlab.notebooks --timing .reproduce_seconds --jobs 2 notebooks/*.ipynb
+	find figures -maxdepth 1 -type f ! -name table6_speed.md -delete
+	mv .figures.new/* figures/ && rmdir .figures.new
 	$(PY) -m slmlab bench --markdown figures/table6_speed.md --reproduce-seconds-file .reproduce_seconds
 
 test: $(STAMP)

@@ -58,6 +58,7 @@ from itertools import combinations_with_replacement
 import numpy as np
 import pandas as pd
 
+from .checks import check_axes
 from .errors import SlmlabError
 from .io import CalibrationSet, IMAGE_COLUMNS
 from .linefit import point_keys
@@ -200,6 +201,7 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
         if len(pts) == 0:
             raise SlmlabError("no dot has both image coordinates and a known position on its target (x_mm, y_mm, "
                               "z_mm); for a two-level plate give plates.moving.level_offset_mm", cal.path)
+        check_axes(world, "target", cal.path)
         return pts, world, "target"
     if mode == "target":
         raise SlmlabError("mode 'target' needs a known-target set (columns x_mm, y_mm, z_mm)", cal.path)
@@ -222,6 +224,7 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
             raise SlmlabError("a Z stack of a plate without rows and cols needs x_mm, y_mm, z_mm columns (extract the "
                               "set with 'python -m slmlab extract')", cal.path)
         world = world + np.column_stack([plate_xy(pts["row"], pts["col"], plate), np.zeros(len(pts))])
+    check_axes(world, mode, cal.path)
     return pts, world, mode
 
 

@@ -232,6 +232,35 @@ def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integ
     return vals
 
 
+#: a stage position beyond this is no stage's [mm] (a file in µm, most likely)
+STAGE_LIMIT_MM = 1e4
+
+
+def _check_plausible(df: pd.DataFrame, meta: dict | None, path: Path) -> None:
+    """Values that are numbers but cannot be what the columns say: image coordinates far outside the image
+    (more than one image size beyond its edges) and stage positions beyond :data:`STAGE_LIMIT_MM`."""
+    if meta is not None:
+        w, h = meta["image_size_px"]
+        for c, size in (("wl1", w), ("wr1", w), ("wl2", h), ("wr2", h)):
+            if c not in df.columns:
+                continue
+            v = df[c].to_numpy(float)
+            bad = np.isfinite(v) & ((v < -size) | (v > 2 * size))
+            if bad.any():
+                k = int(np.flatnonzero(bad)[0])
+                raise SlmlabError(f"row {k + 2}, column {c}: {v[k]:g} px is far outside the {w} × {h} image; "
+                                  "fix the value or leave it empty", path)
+    for c in STAGE_COLUMNS + TARGET_COLUMNS:
+        if c not in df.columns:
+            continue
+        v = df[c].to_numpy(float)
+        bad = np.isfinite(v) & (np.abs(v) > STAGE_LIMIT_MM)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise SlmlabError(f"row {k + 2}, column {c}: {v[k]:g} mm is beyond any stage (over {STAGE_LIMIT_MM:g} "
+                              "mm); are the positions in µm? give them in mm", path)
+
+
 def _require_columns(df: pd.DataFrame, cols: list[str], path: Path, what: str) -> None:
     missing = [c for c in cols if c not in df.columns]
     if missing:
@@ -346,6 +375,7 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
         out[c] = _numeric(df, c, pfile, allow_empty=False, integer=True, minimum=1).astype(int)
     for c in IMAGE_COLUMNS:
         out[c] = _numeric(df, c, pfile, allow_empty=True)
+    _check_plausible(out, meta, pfile)
     given = [c for c in TARGET_COLUMNS if c in df.columns]
     if given and len(given) < 3:
         missing = [c for c in TARGET_COLUMNS if c not in given]
@@ -353,6 +383,8 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
                           "of x_mm, y_mm, z_mm (the dot's position in its target's frame)", pfile)
     for c in given:  # empty where a dot's place is not known (e.g. a two-level plate without level_offset_mm)
         out[c] = _numeric(df, c, pfile, allow_empty=True)
+    if given:
+        _check_plausible(out[given], None, pfile)
     extra = [c for c in df.columns if c not in POINT_COLUMNS and c not in TARGET_COLUMNS]
     for c in extra:
         out[c] = df[c]

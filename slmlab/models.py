@@ -19,7 +19,7 @@ import numpy as np
 from .errors import SlmlabError
 from .io import CalibrationSet, atomic_write_text, json_text
 
-__all__ = ["MODEL_FORMAT", "Model", "register", "available_models", "default_model_name", "get_model_class",
+__all__ = ["MODEL_FORMAT", "Model", "register", "available_models", "default_model_name", "get_model_class", "one_thread",
            "calibrate", "load_model"]
 
 MODEL_FORMAT = "slmlab-model/1"
@@ -122,6 +122,58 @@ def get_model_class(name: str) -> type[Model]:
     return models[name]
 
 
+class one_thread:
+    """Calibration on one thread: OpenCV's own threads, and the OpenBLAS libraries NumPy, SciPy and OpenCV
+    bundle (found beside them; best effort elsewhere), restored afterwards. Parallel reductions add in an order that depends on the number
+    of threads, and an ill-conditioned fit (a near-telecentric pinhole pair) amplifies the last bits; one set
+    must give one model file, whatever the machine's number of cores."""
+
+    _blas = None
+
+    @classmethod
+    def _openblas(cls):
+        if cls._blas is None:
+            import ctypes
+            import glob
+
+            import cv2
+            import scipy
+
+            found = []
+            paths = []
+            for package in (np, scipy, cv2):  # NumPy's and SciPy's OpenBLAS, and the one OpenCV's LAPACK uses
+                paths += glob.glob(os.path.join(os.path.dirname(package.__file__), os.pardir, "*.libs", "*openblas*"))
+            for path in sorted(set(os.path.realpath(p) for p in paths)):
+                try:
+                    lib = ctypes.CDLL(path)
+                except OSError:
+                    continue
+                for prefix in ("scipy_openblas", "openblas"):
+                    for suffix in ("64_", ""):
+                        get, put = f"{prefix}_get_num_threads{suffix}", f"{prefix}_set_num_threads{suffix}"
+                        if hasattr(lib, get) and hasattr(lib, put):
+                            found.append((getattr(lib, get), getattr(lib, put)))
+            cls._blas = found
+        return cls._blas
+
+    def __enter__(self):
+        import cv2
+
+        self.cv = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        self.blas = [(get, put, get()) for get, put in self._openblas()]
+        for _, put, _ in self.blas:
+            put(1)
+        return self
+
+    def __exit__(self, *exc):
+        import cv2
+
+        cv2.setNumThreads(self.cv)
+        for _, put, n in self.blas:
+            put(n)
+
+
 def calibrate(cal: CalibrationSet, model: str | None = None, **options) -> Model:
     """Fit a vision model on a calibration set.
 
@@ -134,8 +186,12 @@ def calibrate(cal: CalibrationSet, model: str | None = None, **options) -> Model
     **options
         model-specific options (e.g. the scale estimator of the paper's models).
     """
+    from .checks import check_stage_file
+
     cls = get_model_class(model or default_model_name())
-    fitted = cls.fit(cal, **options)
+    check_stage_file(cal)
+    with one_thread():
+        fitted = cls.fit(cal, **options)
     fitted.calibration = {**cal.summary(), "notes": list(cal.notes), **fitted.calibration}
     return fitted
 

@@ -188,6 +188,9 @@ def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affin
     if not dps:
         raise SlmlabError("the pinhole model needs X, Y or Z sequences (stage moves) to map the cameras to the stage")
     dp, da = np.vstack(dps), np.vstack(das)
+    from .checks import check_axes
+
+    check_axes(da, "moves", cal.path)
     if kind == "affine":
         a = np.linalg.lstsq(dp, da, rcond=None)[0].T
     else:
@@ -238,6 +241,14 @@ class PinholeModel(Model):
         """``variant`` ``None`` chooses by held-back positions; ``views_from`` the sequences used as target
         views (default: ``T`` if the set has tilted poses, else X, Y, Z); ``f_guess_px`` defaults to
         ``L / pixel`` of a CMO microscope with a 300 mm perspective distance and 3 µm pixels."""
+        from .models import one_thread
+
+        with one_thread():  # (calibrate pins threads too; this covers a direct call of fit)
+            return cls._fit(cal, variant=variant, stage_map=stage_map, views_from=views_from, fix_focal=fix_focal,
+                            f_guess_px=f_guess_px)
+
+    @classmethod
+    def _fit(cls, cal, *, variant, stage_map, views_from, fix_focal, f_guess_px):
         f_guess = f_guess_px or 1e5
         if views_from is None:
             views_from = ("T",) if not cal.sequence("T").empty else ("X", "Y", "Z")

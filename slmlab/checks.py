@@ -1,0 +1,103 @@
+"""Checks that a calibration set can say what a model will be asked to say (run by :func:`slmlab.calibrate`).
+
+A stage file can be wrong in ways no column check sees: a position copied from the row above, a sequence
+whose stage never moved while its dots did, an ``X`` sequence that moves along Y. And a set can leave an
+axis undetermined: no stage motion along it, and no plate lattice or known target to give it. A model fitted
+anyway returns a map, and it is silently wrong. These checks compare each sequence's commanded moves with how
+far its dots moved in the images, and ask of each world axis where its scale comes from; anything wrong is a
+:class:`slmlab.SlmlabError` that names the sequence, the position and what to check.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .errors import SlmlabError
+from .io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
+
+__all__ = ["image_motion", "check_stage_file", "check_axes", "MOVED_PX", "STILL_PX"]
+
+#: dots that moved more than this between two positions [px] did move (centroid noise is ≤ 0.1 px)
+MOVED_PX = 1.0
+#: dots that moved less than this [px] did not
+STILL_PX = 0.05
+#: sequences whose stage positions are commanded moves (``T``: poses held by hand; ``grid``: one pair)
+STAGE_SEQUENCES = ("X", "Y", "Z", "V")
+
+
+def image_motion(seq: pd.DataFrame) -> pd.DataFrame:
+    """Per position of one sequence: the commanded displacement from its first position [mm] (3 columns and
+    its length) and the median image displacement [px] of the dots seen at both (the RMS over the four
+    image coordinates), with the number of such dots."""
+    seq = seq[seq[IMAGE_COLUMNS].notna().all(axis=1)]
+    positions = sorted(seq["position"].unique())
+    if len(positions) < 2:
+        return pd.DataFrame()
+    by_pos = {p: g.set_index(["row", "col"]) for p, g in seq.groupby("position")}
+    first = by_pos[positions[0]]
+    rows = []
+    for p in positions[1:]:
+        g = by_pos[p]
+        common = g.index.intersection(first.index)
+        d_stage = g[STAGE_COLUMNS].iloc[0].to_numpy(float) - first[STAGE_COLUMNS].iloc[0].to_numpy(float)
+        if len(common):
+            dw = g.loc[common, IMAGE_COLUMNS].to_numpy(float) - first.loc[common, IMAGE_COLUMNS].to_numpy(float)
+            moved = float(np.median(np.sqrt(np.mean(dw ** 2, axis=1))))
+        else:
+            moved = float("nan")
+        rows.append({"position": int(p), "dx_mm": d_stage[0], "dy_mm": d_stage[1], "dz_mm": d_stage[2],
+                     "commanded_mm": float(np.linalg.norm(d_stage)), "moved_px": moved, "dots": len(common)})
+    return pd.DataFrame(rows)
+
+
+def check_stage_file(cal: CalibrationSet) -> None:
+    """Raise where a sequence's commanded moves contradict its images (module docstring):
+
+    * the dots moved (more than :data:`MOVED_PX`) but the commanded position is the first position's;
+    * the stage was commanded to move but the dots did not (less than :data:`STILL_PX`), where the set's other
+      positions say how many pixels a millimetre makes;
+    * a sequence named ``X``, ``Y`` or ``Z`` that moves mostly along another axis."""
+    where = "points.csv" if cal.path is None else cal.path / "points.csv"
+    seqs = [s for s in cal.sequences if s in STAGE_SEQUENCES or (cal.known_target and s not in ("grid", "T"))]
+    motion = {s: image_motion(cal.sequence(s)) for s in seqs}
+    both = pd.concat([m for m in motion.values() if len(m)], ignore_index=True) if any(len(m) for m in motion.values()) \
+        else pd.DataFrame()
+    ok = (both["commanded_mm"] > 0) & (both["moved_px"] > MOVED_PX) if len(both) else pd.Series(dtype=bool)
+    px_per_mm = float(np.median(both.loc[ok, "moved_px"] / both.loc[ok, "commanded_mm"])) if ok.any() else None
+    for s, m in motion.items():
+        for r in m.itertuples():
+            if r.commanded_mm == 0 and r.moved_px > MOVED_PX:
+                raise SlmlabError(f"sequence {s}, position {r.position}: the dots moved {r.moved_px:.1f} px from its first "
+                                  "position but the commanded stage position is the same; check that position's "
+                                  "stage_x_mm, stage_y_mm, stage_z_mm", where)
+            if (px_per_mm is not None and r.commanded_mm > 0 and r.moved_px < STILL_PX
+                    and px_per_mm * r.commanded_mm > 20 * STILL_PX):
+                raise SlmlabError(f"sequence {s}, position {r.position}: the stage was commanded {1e3 * r.commanded_mm:.1f} µm "
+                                  f"from its first position but the dots did not move (< {STILL_PX} px, where "
+                                  f"{px_per_mm * r.commanded_mm:.1f} px were expected); check the images and the "
+                                  "stage positions", where)
+        if s in "XYZ" and len(s) == 1:
+            span = cal.sequence(s)[STAGE_COLUMNS].agg(lambda v: float(v.max() - v.min())).to_numpy()
+            named = "XYZ".index(s)
+            if span.max() > 0 and span[named] < 0.5 * span.max():
+                along = "XYZ"[int(np.argmax(span))]
+                raise SlmlabError(f"sequence {s} moves along {along} ({span[int(np.argmax(span))]:g} mm) more than along "
+                                  f"{s} ({span[named]:g} mm); name the sequence after its axis or fix its stage columns",
+                                  where)
+
+
+def check_axes(world: np.ndarray, mode: str, path=None) -> None:
+    """Each world axis must be determined by the calibration rows (``world``: where their dots are, as
+    :func:`slmlab.direct.world_positions` gives): stage motion along it, or a plate lattice or known target
+    that spreads the dots along it. Raise naming the axes that are not, and the remedy."""
+    span = np.nanmax(world, axis=0) - np.nanmin(world, axis=0) if len(world) else np.zeros(3)
+    missing = [c for c, v in zip("XYZ", span) if not v > 0]
+    if not missing:
+        return
+    how = {"moves": "no sequence moves the stage along it",
+           "zstack": "the Z stack's plate and stage do not spread the dots along it",
+           "target": "neither the stage nor the target's own x_mm, y_mm, z_mm spread the dots along it"}[mode]
+    remedy = ("add a sequence along it (or a Z stack of a plate with rows and cols for X, Y)" if mode == "moves"
+              else "add stage positions along it or use a target that spans it")
+    raise SlmlabError(f"{', '.join(missing)} cannot be determined: {how}; {remedy}", path)
