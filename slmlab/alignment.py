@@ -73,7 +73,7 @@ def estimate_alpha(xseq: pd.DataFrame) -> tuple[float, float, int]:
     a = a.dropna()
     if len(a) == 0:
         raise SlmlabError("no grid point is seen at 3 or more positions of the X sequence in both views: "
-                          "cannot estimate α (§4, Eq 8)")
+                          "cannot estimate α (§4, Eq 8); image the plate at more X positions, inside both views")
     return float(a.mean()), float(a.std(ddof=1)) if len(a) > 1 else 0.0, len(a)
 
 
@@ -88,7 +88,8 @@ def estimate_dw2(sequences: dict[str, pd.DataFrame]) -> tuple[float, dict[str, f
             per[name] = float(d.mean())
             allv.append(d)
     if not per:
-        raise SlmlabError("no X, Y or Z sequence seen in both views: cannot estimate δw2 (§4, Eq 12)")
+        raise SlmlabError("no X, Y or Z sequence seen in both views: cannot estimate δw2 (§4, Eq 12); add X, Y and Z "
+                          "sequences whose dots both views see")
     return float(np.mean(list(per.values()))), per, float(np.std(np.concatenate(allv), ddof=1))
 
 
@@ -133,7 +134,8 @@ def fit_disparity_single_pass(xseq: pd.DataFrame) -> DisparityCorrection:
     res = group_lines(point_keys(xseq["row"], xseq["col"]), w, d0, min_n=MIN_POSITIONS).residuals
     ok = np.isfinite(res)
     if ok.sum() < 3:
-        raise SlmlabError("too few X-sequence samples to fit the disparity distortion (§4, Eq 15)")
+        raise SlmlabError("too few X-sequence samples to fit the disparity distortion (§4, Eq 15); image the plate at "
+                          "more X positions")
     aD, bD, cD = np.polyfit(w[ok], res[ok], 2)
     plus = DisparityCorrection(float(aD), float(bD), float(cD), "single-pass")
     minus = DisparityCorrection(-float(aD), -float(bD), -float(cD), "single-pass")
@@ -163,7 +165,8 @@ def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
     # a (w - w0)^2 + b1 (w - w0) = a w^2 + (b1 - 2 a w0) w + const (the constant goes to the d[i,j])
     a, b = float(a), float(b1 - 2 * a * w0)
     if a == 0:
-        raise SlmlabError("the X sequence's disparity shows no curvature: the joint fit of Eqs 13-16 has no vertex")
+        raise SlmlabError("the X sequence's disparity shows no curvature: the joint fit of Eqs 13-16 has no vertex; check "
+                          "that the X sequence moves the plate across the field")
     plus = DisparityCorrection(a, b, b * b / (4 * a), "joint")
     minus = DisparityCorrection(-a, -b, -b * b / (4 * a), "joint")
     s_plus, s_minus = path_straightness(xseq, plus.apply(d0, w)), path_straightness(xseq, minus.apply(d0, w))
@@ -260,7 +263,7 @@ def estimate_alignment(cal: CalibrationSet, correct, method: str = "joint") -> A
         raise SlmlabError(f"unknown disparity method {method!r}; use one of {', '.join(DISPARITY_METHODS)}")
     seqs = {s: sequence_coordinates(cal, s, correct) for s in ("X", "Y", "Z")}
     if len(seqs["X"]) == 0:
-        raise SlmlabError("the calibration set has no X sequence seen in both views: §4 needs one", cal.path)
+        raise SlmlabError("the calibration set has no X sequence seen in both views: §4 needs one; add an X sequence", cal.path)
     alpha, alpha_std, _ = estimate_alpha(seqs["X"])
     rotated = {}
     for s, df in seqs.items():

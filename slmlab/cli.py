@@ -254,5 +254,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return VERBS[args.verb](args)
     except SlmlabError as exc:
+        if exc.path is None and _input_of(args) is not None:  # every message names the file it is about
+            exc = SlmlabError(exc.reason, _input_of(args))
         print(f"slmlab: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_USER_ERROR
+
+
+def _input_of(args):
+    """The file or folder a verb reads (to name in an error that does not say where)."""
+    for name in ("cal_dir", "points", "model"):
+        value = getattr(args, name, None)
+        if isinstance(value, Path):
+            return value
+    return None

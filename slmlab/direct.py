@@ -384,7 +384,10 @@ def _precision(noise_poly: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """Relative weights ``(n, 3)`` (mean 1, within a factor 10 either way) of rows at normalised depth
     ``depth``: the inverse of their variance under ``noise_poly``."""
     var = _noise_variance(noise_poly, depth)
-    var = np.clip(var, 0.1 * np.mean(np.abs(var), 0), 10 * np.mean(np.abs(var), 0))
+    scale = np.mean(np.abs(var), 0)
+    if not (np.isfinite(scale).all() and (scale > 0).all()):  # no scatter left to measure: equal weights
+        return np.ones_like(var)
+    var = np.clip(var, 0.1 * scale, 10 * scale)
     p = 1.0 / var
     return p / p.mean(axis=0)
 
@@ -427,7 +430,12 @@ def plate_length_reference(cal: CalibrationSet, frame: dict, degree: int, coef, 
     lhs = np.array([[a[0] ** 2, 2 * a[0] * a[1], a[1] ** 2],
                     [b[0] ** 2, 2 * b[0] * b[1], b[1] ** 2],
                     [a[0] * b[0], a[0] * b[1] + a[1] * b[0], a[1] * b[1]]])
-    gxx, gxy, gyy = np.linalg.solve(lhs, [1 - a[2] ** 2, 1 - b[2] ** 2, -a[2] * b[2]])
+    try:
+        gxx, gxy, gyy = np.linalg.solve(lhs, [1 - a[2] ** 2, 1 - b[2] ** 2, -a[2] * b[2]])
+    except np.linalg.LinAlgError:
+        return none
+    if not (np.isfinite([gxx, gxy, gyy]).all() and gxx > 0 and gyy > 0):  # no metric: the grid cannot measure
+        return none
     resid = p - design @ sol
     s2 = np.sum(resid[:, :2] ** 2) / max(2 * (len(g) - 3), 1)
     sgg = np.sum((g - g.mean(axis=0)) ** 2) / 2
@@ -507,7 +515,8 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
             frames = {4: frames[4]}
     if degree is None:
         trains = [tr for tr, _ in folds]
-        if not folds or (mode == "moves" and (min(len(np.unique(positions[tr])) for tr in trains) < 2)):
+        if (not folds or any(not tr.any() or not te.any() for tr, te in folds)
+                or (mode == "moves" and (min(len(np.unique(positions[tr])) for tr in trains) < 2))):
             raise SlmlabError("too few stage positions to choose the degree (at least 3 per sequence); give "
                               "degree=... or image more positions", cal.path)
         # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
@@ -520,7 +529,8 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
             variables_cv[nv] = [float(min(v[k] for v in chosen[nv][1].values())) for k in range(3)]
         nv = 3
         if 4 in chosen and 3 in chosen:
-            ratio = np.exp(np.mean(np.log(np.divide(variables_cv[4], np.maximum(variables_cv[3], 1e-300)))))
+            tiny = 1e-12  # mm: held-out errors of zero (noise-free data) compare as equal
+            ratio = np.exp(np.mean(np.log(np.maximum(variables_cv[4], tiny) / np.maximum(variables_cv[3], tiny))))
             nv = 4 if ratio < 0.95 else 3
         elif 4 in chosen:
             nv = 4

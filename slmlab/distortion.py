@@ -99,7 +99,8 @@ def _column_quadratic(j, w1p, w2p, a: float | None = None) -> tuple[float, float
     e = column_residuals(j, w1p, w2p)
     ok = np.isfinite(e)
     if ok.sum() < 3:
-        raise SlmlabError("too few dots in complete columns to fit the column correction (§3, Eq 5)")
+        raise SlmlabError("too few dots in complete columns to fit the column correction (§3, Eq 5); image the grid "
+                          "plate so that it fills both views")
     if a is None:
         a, b, c = np.polyfit(w2p[ok], e[ok], 2)
     else:
@@ -113,7 +114,8 @@ def estimate_two_step(i, j, w1, w2) -> ViewCorrection:
     ``a, b, c`` from the column lines of the row-corrected dots (Eqs 4–5)."""
     lines = row_lines(i, w1, w2)
     if len(lines) < 3:
-        raise SlmlabError("fewer than 3 rows with 3 or more dots: cannot estimate the row correction (§3, Eq 3)")
+        raise SlmlabError("fewer than 3 rows with 3 or more dots: cannot estimate the row correction (§3, Eq 3); image "
+                          "the grid plate so that it fills both views")
     lam = -float(np.polyfit(lines["b"], lines["k"], 1)[0])
     w1 = np.asarray(w1, float)
     w2p = np.asarray(w2, float) * (1 + lam * w1)

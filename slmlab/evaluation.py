@@ -63,7 +63,8 @@ def residuals(reconstruct, cal: CalibrationSet, sequences=("X", "Y", "Z")) -> pd
             "col": df["col"].to_numpy()[keep], "displacement_mm": da[:, axis],
             "E_X": e[:, 0], "E_Y": e[:, 1], "E_Z": e[:, 2]}))
     if not frames:
-        raise SlmlabError("no X, Y or Z sequence with 2 or more positions seen in both views: nothing to evaluate",
+        raise SlmlabError("no X, Y or Z sequence with 2 or more positions seen in both views: nothing to evaluate; evaluate on a "
+                          "set with stage sequences",
                           cal.path)
     return pd.concat(frames, ignore_index=True)
 

@@ -70,7 +70,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if not path.exists():
         raise SlmlabError("image not found; check the path (images are named relative to the set's folder)", path)
     if path.is_dir():
-        raise SlmlabError("is a folder, not an image", path)
+        raise SlmlabError("is a folder, not an image; give the image file", path)
     data = np.fromfile(path, dtype=np.uint8)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH) if data.size else None
     if img is None or img.size == 0:
@@ -773,7 +773,9 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
                           "marker": blobs.holes[k], "level": level})
     frame, how, note = None, "", ""
     donuts = int(blobs.holes[k].sum())
-    use_markers = anchor == "markers" or (anchor == "auto" and (donuts >= 3 or blobs.markers))
+    sized = rows is not None and cols is not None
+    # polygon markers give an origin, for a plate whose size is unknown; a donut L numbers any plate
+    use_markers = anchor == "markers" or (anchor == "auto" and (donuts >= 3 or (blobs.markers and not sized)))
     if use_markers and donuts >= 3:
         ij, note = _donut_indices(pl, blobs.holes, marker_origin)
         if ij is not None:
@@ -788,8 +790,8 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
                 table["level"] = (xy[0] % 2).astype(int)
             table["xu"], table["yu"] = xy[0].astype(int), xy[1].astype(int)
             table["row"], table["col"] = -table["yu"], -table["xu"]
-    if frame is None and not note and anchor != "markers":
-        if rows is None or cols is None:
+    if frame is None and (sized or not note) and anchor != "markers":
+        if not sized:
             note = ("no markers found and the plate's rows and cols are not given (a plate larger than the "
                     "field needs markers, or neighbouring images to track it from)")
         else:

@@ -164,7 +164,8 @@ def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: st
         except cv2.error:
             pass
     if best is None:
-        raise SlmlabError("OpenCV's stereoCalibrate failed on these views")
+        raise SlmlabError("OpenCV's stereoCalibrate failed on these views; add views (more stage positions, or the plate "
+                          "held at tilts)")
     (rms, K1, d1, K2, d2, R, T, _, _), how = best
     return StereoPinhole(K1, d1, K2, d2, R, T, float(rms), variant, (out["l"][2], out["r"][2]), how)
 

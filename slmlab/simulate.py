@@ -337,6 +337,9 @@ def simulate_set(microscope: Microscope | None = None, session: Session | None =
         plates[name] = (plate, i, j, pts @ plate.orientation().T)
 
     frames, truths = [], []
+    if not session.stage_positions():
+        raise SlmlabError("the session images nothing: give it positions along X, Y or Z, the grid pair, "
+                          "tilted poses or volume positions")
     for seq, commanded in session.stage_positions().items():
         plate, i, j, offsets = plates["grid" if seq == "grid" else "moving"]
         actual = microscope.stage.actual(commanded, stage_rng)

@@ -181,7 +181,8 @@ def _scale(d_true: np.ndarray, d_image: np.ndarray, estimator: str, what: str) -
 
 def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     if len(x) < 2 or np.ptp(x) == 0:
-        raise SlmlabError("too few distinct displacements to fit a compensation line (§5.3, Eqs 29–32)")
+        raise SlmlabError("too few distinct displacements to fit a compensation line (§5.3, Eqs 29–32); image more "
+                          "positions along Y and Z")
     k, b = np.polyfit(x, y, 1)
     return float(k), float(b)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 import slmlab
@@ -155,7 +155,6 @@ def _valid_points(small_set):
 CORRUPTIONS = st.sampled_from(["cell", "drop", "dup", "truncate", "swap_header", "blank_cell"])
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(kind=st.lists(CORRUPTIONS, min_size=1, max_size=3), where=st.integers(1, 10_000),
        text=st.one_of(st.text(max_size=6), st.sampled_from(["nan", "inf", "-1", "0", "1e308", "", " ", "9999"])))
 def test_random_corruptions_give_success_or_the_documented_error(small_set, tmp_path_factory, kind, where, text):

@@ -1,0 +1,223 @@
+"""Microscopes and sessions that are none of the presets (hypothesis): every verb either succeeds with finite
+outputs or exits 2 with one line naming the file and the remedy, and prints no warning on the way."""
+
+import contextlib
+import io
+import json
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import event, given
+from hypothesis import strategies as st
+
+import slmlab
+from slmlab import cli
+from slmlab.microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
+from slmlab.simulate import Session
+
+MODELS = ("auto", "direct", "soloff", "quadratic", "paper-m2")
+
+
+@st.composite
+def microscopes(draw) -> Microscope:
+    width, height = draw(st.integers(480, 2600)), draw(st.integers(480, 2600))
+    pixel = draw(st.floats(0.0015, 0.008))
+    d = draw(st.floats(0.0, 3.0))  # distortion, relative to the paper preset's
+    pp = lambda: (draw(st.floats(0.4, 0.6)) * width, draw(st.floats(0.4, 0.6)) * height)  # noqa: E731
+    rot = draw(st.floats(-0.5, 0.5))
+    optics = Optics(perspective_distance_mm=draw(st.sampled_from([60.0, 150.0, 300.0, 1e9])),
+                    convergence_deg=draw(st.floats(6.0, 24.0)), pixel_mm=pixel, image_size_px=(width, height),
+                    depth_of_field_mm=draw(st.floats(0.3, 2.0)), inverted=draw(st.booleans()),
+                    left=View(2.7e-4 * d, 2.7e-4 * d, 3.3e-5 * d, 1.0, -rot, pp()),
+                    right=View(-2.7e-4 * d, -2.7e-4 * d, 3.3e-5 * d, draw(st.floats(0.998, 1.002)), rot, pp()))
+    err = draw(st.floats(0.0, 2.0))
+    stage = Stage(rotation_deg=draw(st.floats(-10, 10)), y_skew=draw(st.floats(-0.02, 0.02)),
+                  y_tilt=draw(st.floats(-0.03, 0.03)), z_tilt_x=draw(st.floats(-0.03, 0.03)),
+                  z_tilt_y=draw(st.floats(-0.03, 0.03)), scale_error=(1e-4 * err, -1e-4 * err, 1.5e-4 * err),
+                  straightness_um=(0.3 * err,) * 3, lead_error_um=0.3 * err, positioning_noise_um=0.3 * err)
+    field = pixel * min(width, height)
+    rows, cols = draw(st.integers(3, 9)), draw(st.integers(3, 9))
+    pitch = draw(st.floats(0.3, 0.7)) * field / max(rows, cols)
+    plate = Plate(rows, cols, pitch, 0.4 * pitch, rotation_deg=draw(st.floats(-5, 5)))
+    noise = CentroidNoise(draw(st.floats(0.005, 0.1)), draw(st.floats(0.1, 0.3)))
+    return replace(slmlab.preset("paper"), optics=optics, stage=stage, noise=noise,
+                   grid_plate=replace(plate, rows=2 * rows + 1, cols=2 * cols + 1, pitch_mm=pitch / 2,
+                                      dot_diameter_mm=0.2 * pitch),
+                   moving_plate=plate, preset="random")
+
+
+@st.composite
+def sessions(draw, microscope: Microscope) -> Session:
+    field = microscope.optics.pixel_mm * min(microscope.optics.image_size_px)
+    steps = tuple(draw(st.floats(0.01, 0.15)) * field for _ in range(3))
+    positions = tuple(draw(st.integers(0, 9)) for _ in range(3))
+    return Session(step_mm=steps, positions=positions, grid=draw(st.booleans()), name="random")
+
+
+CORRUPTIONS = ("none", "drop sequence", "one position", "two positions", "zero motion", "scale motion",
+               "missing rows", "NaNs", "duplicate position")
+
+
+def corrupt(points, how: str, rng: np.random.Generator):
+    pts = points.copy()
+    seqs = [s for s in pts["sequence"].unique() if s != "grid"]
+    if not seqs or how == "none":
+        return pts
+    s = seqs[int(rng.integers(len(seqs)))]
+    mine = pts["sequence"] == s
+    if how == "drop sequence":
+        return pts[~mine]
+    if how in ("one position", "two positions"):
+        keep = 1 if how == "one position" else 2
+        return pts[~mine | (pts["position"] <= keep)]
+    if how == "zero motion":
+        first = pts[mine & (pts["position"] == pts.loc[mine, "position"].min())].iloc[0]
+        for c in ("stage_x_mm", "stage_y_mm", "stage_z_mm"):
+            pts.loc[mine, c] = first[c]
+        return pts
+    if how == "scale motion":  # a stage file in the wrong unit
+        for c in ("stage_x_mm", "stage_y_mm", "stage_z_mm"):
+            pts.loc[mine, c] *= 1000.0
+        return pts
+    if how == "missing rows":
+        return pts.drop(index=pts.index[rng.random(len(pts)) < 0.3])
+    if how == "NaNs":
+        cols = ["wl1", "wl2", "wr1", "wr2"]
+        mask = rng.random((len(pts), 4)) < 0.2
+        pts[cols] = pts[cols].mask(mask)
+        return pts
+    if how == "duplicate position":
+        import pandas as pd
+
+        p = pts.loc[mine, "position"].max()
+        copy = pts[mine & (pts["position"] == p)].copy()
+        copy["position"] = p + 1
+        return pd.concat([pts, copy], ignore_index=True)
+    raise AssertionError(how)
+
+
+def run(*args) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = cli.main([str(a) for a in args])
+    return code, err.getvalue()
+
+
+def check(code: int, stderr: str, path) -> bool:
+    """Success, or exit 2 with one line naming a file under ``path`` and saying what to do."""
+    if code == 0:
+        return True
+    assert code == 2, stderr
+    assert stderr.startswith("slmlab: error: ") and stderr.count("\n") == 1, stderr
+    assert str(path) in stderr, stderr
+    assert any(w in stderr for w in REMEDY), f"no remedy in: {stderr}"
+    return False
+
+
+#: how a message says what to do
+REMEDY = ("; ", " must ", " needs ", "give ", "use ", "fix ", "check ", "add ", "image more", "leave ", "name ",
+          "recalibrate", "convert", "export")
+
+
+@given(m=microscopes(), data=st.data(), how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
+def test_every_verb_succeeds_or_says_what_to_do(m, data, how, seed, tmp_path_factory):
+    session = data.draw(sessions(m))
+    folder = tmp_path_factory.mktemp("rig")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            cal = slmlab.simulate_set(m, session, seed=seed)
+        except slmlab.SlmlabError:
+            event("session images nothing")
+            return
+        cal = slmlab.CalibrationSet(corrupt(cal.points, how, np.random.default_rng(seed)), cal.meta)
+        if cal.points.empty:
+            event("no rows left")
+            return
+        d = slmlab.write_set(folder / "set", cal)
+        pts = folder / "points.csv"
+        cal.points[["wl1", "wl2", "wr1", "wr2"]].dropna().head(50).to_csv(pts, index=False)
+        for model in MODELS:
+            out = folder / f"{model}.json"
+            if not check(*run("calibrate", d, "--model", model, "--out", out), d):
+                assert not out.exists()
+                event(f"{model}: exit 2")
+                continue
+            event(f"{model}: calibrated")
+            params = json.loads(out.read_text())["parameters"]
+            flat = np.concatenate([np.ravel(v) for v in _numbers(params)]) if _numbers(params) else np.zeros(1)
+            assert np.isfinite(flat).all(), model
+            rec = folder / f"{model}.csv"
+            if check(*run("reconstruct", out, pts, "--out", rec), pts):
+                xyz = np.loadtxt(rec, delimiter=",", skiprows=1, usecols=range(4, 7), ndmin=2)
+                assert np.isfinite(xyz).all(), model
+            check(*run("evaluate", out, d), d)
+
+
+def _numbers(obj):
+    if isinstance(obj, dict):
+        return [v for x in obj.values() for v in _numbers(x)]
+    if isinstance(obj, (list, tuple)):
+        if obj and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in obj):
+            return [np.asarray(obj, float)]
+        return [v for x in obj for v in _numbers(x)]
+    if isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        return [np.asarray([obj], float)]
+    return []
+
+
+IMAGE_DAMAGE = ("none", "none", "none", "blank image", "truncated image", "other size", "missing image")
+
+
+@given(m=microscopes(), data=st.data(), damage=st.sampled_from(IMAGE_DAMAGE), tiff=st.booleans(),
+       bright=st.booleans(), seed=st.integers(0, 2 ** 16))
+def test_extract_succeeds_or_says_what_to_do(m, data, damage, tiff, bright, seed, tmp_path_factory):
+    import cv2
+
+    from slmlab.render import render_set
+
+    small = replace(m, optics=replace(m.optics, image_size_px=tuple(min(v, 900) for v in m.optics.image_size_px)))
+    session = Session(step_mm=data.draw(sessions(small)).step_mm, positions=tuple(data.draw(st.integers(0, 3))
+                                                                                  for _ in range(3)), grid=False)
+    folder = tmp_path_factory.mktemp("img")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            cal = slmlab.simulate_set(small, session, seed=seed)
+        except slmlab.SlmlabError:
+            return
+        d = slmlab.write_set(folder / "set", cal)
+        render_set(cal, d, progress=False)
+        rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+        stage = cal.points.drop_duplicates(["sequence", "position"])
+        for r in stage.itertuples():
+            names = []
+            for side in "lr":
+                png = d / "images" / f"{r.sequence}_{r.position:03d}_{side}.png"
+                img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+                img = 255 - img if bright else img
+                out = png.with_suffix(".tif") if tiff else png
+                cv2.imwrite(str(out), img.astype(np.uint16) * 257 if tiff else img)
+                names.append(f"images/{out.name}")
+            rows.append(f"{r.sequence},{r.position},{r.stage_x_mm},{r.stage_y_mm},{r.stage_z_mm},{names[0]},{names[1]}")
+        (d / "stage.csv").write_text("\n".join(rows) + "\n")
+        (d / "points.csv").unlink()
+        victim = d / rows[-1].split(",")[5]
+        if damage == "blank image":
+            cv2.imwrite(str(victim), np.full(cv2.imread(str(victim), cv2.IMREAD_UNCHANGED).shape, 128, np.uint8))
+        elif damage == "truncated image":
+            victim.write_bytes(victim.read_bytes()[:200])
+        elif damage == "other size":
+            cv2.imwrite(str(victim), cv2.imread(str(victim), cv2.IMREAD_UNCHANGED)[: small.optics.image_size_px[1] // 2])
+        elif damage == "missing image":
+            victim.unlink()
+        code, err = run("extract", d)
+        if check(code, err, d):
+            event(f"extracted ({damage})")
+            pts = slmlab.read_points(d / "points.csv")
+            assert np.isfinite(pts[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)[pts[["wl1", "wl2", "wr1", "wr2"]].notna().to_numpy()]).all()
+        else:
+            event(f"exit 2 ({damage})")
+            assert not (d / "points.csv").exists()
