@@ -13,12 +13,13 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from .io import atomic_write_bytes, atomic_write_text
 
 __all__ = ["REPO_ROOT", "DATA_DIR", "SHARED_DIR", "figures_dir", "notebook_size", "paper_reference", "savefig",
-           "savetable", "markdown_table"]
+           "savetable", "markdown_table", "table_digits", "TABLE_DIGITS"]
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = REPO_ROOT / "data"
@@ -91,11 +92,43 @@ def markdown_table(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: significant digits of a computed number in a table: what a fit on simulated or measured data carries, and
+#: few enough that a table does not change with the machine (summation order moves the sixth digit)
+TABLE_DIGITS = 4
+
+
+def _is_reference(column: str) -> bool:
+    """Columns that hold the paper's own numbers (``paper``, ``paper_std``, ...): kept as reported."""
+    return column == "paper" or column.startswith("paper_")
+
+
+def table_digits(df: pd.DataFrame, digits: int = TABLE_DIGITS) -> pd.DataFrame:
+    """The table as it is written: every computed float rounded to ``digits`` significant digits, and exact
+    zeros where a value is rounding noise (below 1e-12, or below 1e-9 of its column's largest magnitude);
+    the paper's reference columns, integers and text unchanged."""
+    out = df.copy()
+    for col in out.columns:
+        if _is_reference(str(col)) or not pd.api.types.is_float_dtype(out[col]):
+            continue
+        v = out[col].to_numpy(float, copy=True)
+        finite = np.isfinite(v)
+        big = np.abs(v[finite]).max() if finite.any() else 0.0
+        v[finite & ((np.abs(v) < 1e-12) | (np.abs(v) <= 1e-9 * big))] = 0.0
+        nz = finite & (v != 0)
+        mag = np.floor(np.log10(np.abs(v[nz])))
+        scale = 10.0 ** (digits - 1 - mag)
+        v[nz] = np.round(v[nz] * scale) / scale
+        out[col] = v
+    return out
+
+
 def savetable(df: pd.DataFrame, name: str) -> Path | None:
-    """Write a table as ``{name}.csv`` and ``{name}.md`` into :func:`figures_dir` (if set)."""
+    """Write a table as ``{name}.csv`` and ``{name}.md`` into :func:`figures_dir` (if set), its numbers to the
+    digits they carry (:func:`table_digits`), so that ``make reproduce`` writes the same bytes on any machine."""
     out = figures_dir()
     if out is None:
         return None
+    df = table_digits(df)
     atomic_write_text(out / f"{name}.csv", df.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
     atomic_write_text(out / f"{name}.md", markdown_table(df))
     return out / f"{name}.csv"

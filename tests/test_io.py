@@ -153,3 +153,25 @@ def test_read_points_passes_other_columns_through(tmp_path):
     f.write_text("id,wl1,wl2,wr1,wr2\na,1,2,3,4\nb,,,,\n")
     df = slmlab.read_points(f)
     assert list(df["id"]) == ["a", "b"] and df["wl1"].isna().tolist() == [False, True]
+
+
+def test_tables_keep_the_digits_their_numbers_carry(tmp_path, monkeypatch):
+    """Issue 17: four significant digits, rounding noise as exact zeros, the paper's columns as reported; a
+    last-bit difference (another machine's summation order) writes the same bytes."""
+    import numpy as np
+    import pandas as pd
+
+    from slmlab.paths import savetable, table_digits
+
+    df = pd.DataFrame({"name": ["a", "b", "c"], "ours": [0.123456789, -1.5e-12, 12345.678],
+                       "paper": [0.1234567, 0.0, 12345.678], "n": [1, 2, 3], "tiny": [3.2e-7, 1.2e-7, np.nan]})
+    t = table_digits(df)
+    assert t["ours"].tolist() == [0.1235, 0.0, 12350.0]
+    assert t["paper"].tolist() == df["paper"].tolist() and t["n"].tolist() == [1, 2, 3]
+    assert t["tiny"].iloc[:2].tolist() == [3.2e-7, 1.2e-7] and np.isnan(t["tiny"].iloc[2])
+    monkeypatch.setenv("SLMLAB_FIGURES", str(tmp_path))
+    savetable(df, "t")
+    first = (tmp_path / "t.md").read_bytes(), (tmp_path / "t.csv").read_bytes()
+    savetable(df.assign(ours=df["ours"] * (1 + 4e-16)), "t")
+    assert ((tmp_path / "t.md").read_bytes(), (tmp_path / "t.csv").read_bytes()) == first
+    assert b"e-12" not in first[0]

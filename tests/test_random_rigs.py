@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import event, given
+from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import slmlab
@@ -17,7 +17,7 @@ from slmlab import cli
 from slmlab.microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
 from slmlab.simulate import Session
 
-MODELS = ("auto", "direct", "soloff", "quadratic", "paper-m2")
+MODELS = ("auto", "direct", "soloff", "quadratic", "paper-m0", "paper-m1", "paper-m2")
 
 
 @st.composite
@@ -154,6 +154,32 @@ def test_every_verb_succeeds_or_says_what_to_do(m, data, how, seed, tmp_path_fac
                 xyz = np.loadtxt(rec, delimiter=",", skiprows=1, usecols=range(4, 7), ndmin=2)
                 assert np.isfinite(xyz).all(), model
             check(*run("evaluate", out, d), d)
+
+
+@settings(max_examples=max(10, settings.default.max_examples // 5))
+@given(m=microscopes(), data=st.data(), how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
+def test_the_pinhole_model_succeeds_or_says_what_to_do(m, data, how, seed, tmp_path_factory):
+    """OpenCV's calibration (seconds a fit) on fewer random rigs than the others."""
+    session = data.draw(sessions(m))
+    folder = tmp_path_factory.mktemp("pin")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            cal = slmlab.simulate_set(m, session, seed=seed)
+        except slmlab.SlmlabError:
+            return
+        cal = slmlab.CalibrationSet(corrupt(cal.points, how, np.random.default_rng(seed)), cal.meta)
+        if cal.points.empty:
+            return
+        d = slmlab.write_set(folder / "set", cal)
+        out = folder / "pinhole.json"
+        if check(*run("calibrate", d, "--model", "pinhole", "--option", "variant=standard", "--out", out), d):
+            event("pinhole: calibrated")
+            params = json.loads(out.read_text())["parameters"]
+            assert all(np.isfinite(v).all() for v in _numbers(params))
+            check(*run("evaluate", out, d), d)
+        else:
+            event("pinhole: exit 2")
 
 
 def _numbers(obj):

@@ -243,3 +243,42 @@ def test_misindexed_dots_are_reported_not_fatal(work, tmp_path):
 
 def test_a_clean_set_has_no_suspects(small_set):
     assert slmlab.calibrate(slmlab.read_set(small_set), "paper-m2").calibration["suspect_rows"] == []
+
+
+# ------------------------------------------------------------------------------------------ a wrong stage file
+def _rewrite(d, fn):
+    pts = pd.read_csv(d / "points.csv")
+    out = fn(pts)
+    (pts if out is None else out).to_csv(d / "points.csv", index=False)
+
+
+STAGE_FILE_CASES = {
+    # the stage was commanded along Y, but the dots stood still (the same image coordinates as position 1)
+    "commanded but not moved": (lambda p: p.update(p[p["sequence"] == "Y"].groupby(["row", "col"])[
+        ["wl1", "wl2", "wr1", "wr2"]].transform("first")), ["sequence Y", "did not move"]),
+    # an X sequence whose moves were written into the Y column
+    "a sequence moving along another axis": (lambda p: p.update(p[p["sequence"] == "X"].assign(
+        stage_y_mm=p["stage_y_mm"] + p["stage_x_mm"] - p["stage_x_mm"].iloc[0], stage_x_mm=p["stage_x_mm"].iloc[0])),
+        ["sequence X moves along Y"]),
+    # no Z sequence: depth is determined by nothing
+    "no motion along an axis": (lambda p: p[p["sequence"] != "Z"],
+                                ["Z cannot be determined", "add a sequence along it"]),
+}
+
+
+@pytest.mark.parametrize("case", list(STAGE_FILE_CASES), ids=list(STAGE_FILE_CASES))
+def test_a_wrong_stage_file_or_an_undetermined_axis_is_named(case, work, tmp_path):
+    fn, fragments = STAGE_FILE_CASES[case]
+    _rewrite(work, fn)
+    for model in ("direct", "auto"):
+        r = cli("calibrate", work, "--model", model, "--out", tmp_path / "m.json")
+        assert_user_error(r, *fragments)
+        assert not (tmp_path / "m.json").exists()
+
+
+def test_a_known_target_without_depth_names_the_axis(tmp_path):
+    from slmlab.simulate import stepped_target, target_set
+
+    flat = target_set(slmlab.preset("paper"), stepped_target(steps_mm=(0.0,)), [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+    d = slmlab.write_set(tmp_path / "flat", flat)
+    assert_user_error(cli("calibrate", d, "--out", tmp_path / "m.json"), "Z cannot be determined")
