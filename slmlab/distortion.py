@@ -137,10 +137,23 @@ def estimate_joint(i, j, w1, w2, start: ViewCorrection | None = None) -> ViewCor
     start = start or estimate_two_step(i, j, w1, w2)
     scale = 1e-6
 
-    def resid(x):
-        return lattice_misfit(i, j, *ViewCorrection(x[0] * scale, x[1] * scale).apply(w1, w2)).ravel()
+    w1a, w2a = np.asarray(w1, float), np.asarray(w2, float)
 
-    sol = least_squares(resid, [start.lam / scale, start.a / scale], method="lm", x_scale=1.0)
+    def resid(x):
+        return lattice_misfit(i, j, *ViewCorrection(x[0] * scale, x[1] * scale).apply(w1a, w2a)).ravel()
+
+    def jac(x):
+        # the misfit is a fixed linear projection of the corrected dots (the lattice indices do not move), so its
+        # derivative is the projection of theirs: w1'' = w1 + a·w2'², w2' = w2·(1 + λ·w1)
+        w2p = w2a * (1.0 + x[0] * scale * w1a)
+        d_lam = lattice_misfit(i, j, 2 * x[1] * scale * w2p * w2a * w1a, w2a * w1a).ravel()
+        d_a = lattice_misfit(i, j, w2p ** 2, np.where(np.isfinite(w2p), 0.0, np.nan)).ravel()
+        return np.column_stack([d_lam, d_a]) * scale
+
+    # an analytic Jacobian and a stop at the floating-point floor (not scipy's default 1e-8 with finite
+    # differences): otherwise the last bits of the input, which differ between CPUs, move λ in its seventh digit
+    sol = least_squares(resid, [start.lam / scale, start.a / scale], jac=jac, method="lm", x_scale=1.0,
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
     lam, a = sol.x * scale
     w1 = np.asarray(w1, float)
     w2p = np.asarray(w2, float) * (1 + lam * w1)

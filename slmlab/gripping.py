@@ -201,6 +201,11 @@ def wire_mask(shape, line, half_width_px: float = 30.0) -> np.ndarray:
     return np.where(dist > half_width_px, 255, 0).astype(np.uint8)
 
 
+#: a fixed number of ECC iterations, no ε stop: a stop on the correlation's increment ends one iteration
+#: sooner or later with the CPU's float32 rounding (AVX-512 or AVX2), and moves the tip by a hundredth of a pixel
+ECC_CRITERIA = (cv2.TERM_CRITERIA_COUNT, 40, 0.0)
+
+
 def locate_gripper(image: np.ndarray, model: GripperModel, side: str, expected_px=None, search_px: int = 400,
                    mask: np.ndarray | None = None, motion: str = "translation") -> np.ndarray:
     """Image position [px] of the gripper's tip point: pyramid template matching, then an ECC refinement
@@ -234,7 +239,7 @@ def locate_gripper(image: np.ndarray, model: GripperModel, side: str, expected_p
     warp = np.array([[1, 0, x0 + loc[0]], [0, 1, y0 + loc[1]]], np.float32)
     try:
         _, warp = cv2.findTransformECC(tpl, img, warp, cv2.MOTION_AFFINE if motion == "affine" else cv2.MOTION_TRANSLATION,
-                                       (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-6), mask, 5)
+                                       ECC_CRITERIA, mask, 5)
     except cv2.error:
         pass
     if score < 0.5:
@@ -297,11 +302,12 @@ def locate_wire(image: np.ndarray, microscope: Microscope, scene: Scene, side: s
     along = rel @ d_img
     across = rel @ np.array([-d_img[1], d_img[0]])
     inside = (along > 0) & (along < np.linalg.norm(stop - start)) & (np.abs(across) < half_w)
-    vals = image[ys, xs].astype(np.float32)
+    # float64 throughout: float32 sums over tens of thousands of pixels depend on the CPU's vector width
+    vals = image[ys, xs].astype(np.float64)
     bg = np.percentile(vals[inside], 90)
     dark = inside & (vals < 0.75 * bg)
     wts = np.clip(bg - vals, 0, None) * dark
-    pts = np.column_stack([xs[dark], ys[dark]]).astype(np.float32)
+    pts = np.column_stack([xs[dark], ys[dark]]).astype(np.float64)
     if len(pts) < 50:
         raise SlmlabError(f"wire not found in the {side} image")
     # centreline: weighted least squares line (weights: darkness), via the weighted covariance

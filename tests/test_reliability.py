@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from hypothesis import given
@@ -226,6 +227,48 @@ def test_a_notebook_writes_identical_figures_twice(tmp_path):
     assert files and files == sorted(p.name for p in (tmp_path / "b").iterdir())
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+
+
+#: a machine with another CPU, emulated on this one: NumPy without its AVX-512 loops (exp, log, arctan2 round
+#: differently), OpenBLAS with the Haswell kernels, OpenCV without AVX-512 (a no-op where the CPU lacks them)
+OTHER_CPU = {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4", "OPENBLAS_CORETYPE": "Haswell",
+             "OPENCV_CPU_DISABLE": "AVX512F,AVX512-SKX,AVX512-COMMON"}
+
+CPU_PROBE = """
+import json, numpy as np, slmlab
+from slmlab import gripping
+from slmlab.alignment import estimate_alignment
+from slmlab.distortion import estimate_distortion
+m = slmlab.preset("paper")
+cal = slmlab.simulate_set(m, slmlab.paper_test(1), seed=1)
+dist = estimate_distortion(cal.sequence("grid"))
+align = estimate_alignment(cal, dist.apply)
+scene = gripping.episode_scene(1)
+tip = scene.grip_point() + np.asarray(scene.gripper_tip_start_mm)
+img = gripping.render_scene(m, scene, tip, "l", np.random.default_rng(1))
+hub, (mu, d), grip = gripping.locate_wire(img, m, scene, "l")
+gmodel = gripping.build_gripper_model(m, scene, tip + [0.002, -0.001, 0.0])
+found = gripping.locate_gripper(img, gmodel, "l", expected_px=gmodel.reference_tip_px["l"])
+print(json.dumps({"distortion": dist.table().select_dtypes("number").to_numpy().ravel().tolist(),
+                  "alignment": [align.alpha_rad, align.dw2_px, align.disparity["joint"].aD, align.disparity["joint"].bD],
+                  "wire": [*mu, *d, *grip], "gripper": [*found]}))
+"""
+
+
+def test_results_do_not_depend_on_the_cpu(tmp_path):
+    """Issue 17: ``make reproduce`` on another machine writes the same tables. The inputs already differ in
+    their last bit there (another CPU's exp, another BLAS kernel); what must not happen is an estimator that
+    amplifies that into the fifth digit (a fit stopped at 1e-8 with a finite-difference Jacobian did; so did
+    float32 sums over a wire's pixels)."""
+    runs = []
+    for extra in ({}, OTHER_CPU):
+        r = subprocess.run([sys.executable, "-c", CPU_PROBE], capture_output=True, text=True, timeout=300,
+                           env={**os.environ, **extra})
+        assert r.returncode == 0, r.stderr
+        runs.append(json.loads(r.stdout))
+    for key in runs[0]:
+        a, b = np.asarray(runs[0][key]), np.asarray(runs[1][key])
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, err_msg=key)
 
 
 def test_misindexed_dots_are_reported_not_fatal(work, tmp_path):
