@@ -35,8 +35,9 @@ of the stage frame's X-Y block follows (:func:`plate_length_reference`): the sta
 relative to the plate, and the cosine between its X and Y axes, are reported. With
 ``length_reference="plate"`` the X and Y scales are then taken from the plate. That is not the default: the
 plate lies in no plane of the stage frame, and the cosines between the stage's Z axis and its X and Y axes,
-which no plate in one pose can measure, enter at second order (about 2e-5 on the ``paper`` preset, a fifth of
-its stage's scale errors). Z has no such reference (a plate is flat); for axes whose scale is the stage's, a
+which no plate in one pose can measure, enter as their product with the plate's slope in the commanded
+frame: second order, but on the ``paper`` preset (tilts of about 0.013) about 4e-4 in Y, more than its
+stage's scale errors; the reported ``sigma`` includes the term. Z has no such reference (a plate is flat); for axes whose scale is the stage's, a
 user can declare its uncertainty from the stage's datasheet as ``stage_scale_sigma`` (relative, 1σ).
 
 * The degree is chosen on held-out positions (every third position of each sequence), never on test data,
@@ -440,9 +441,13 @@ def plate_length_reference(cal: CalibrationSet, frame: dict, degree: int, coef, 
     s2 = np.sum(resid[:, :2] ** 2) / max(2 * (len(g) - 3), 1)
     sgg = np.sum((g - g.mean(axis=0)) ** 2) / 2
     cosine = gxy / np.sqrt(gxx * gyy)
-    # 1σ: the fit's, and the neglected Z cross terms (the plate's Z extent in the stage frame times a cosine
-    # between the Z axis and X or Y, taken as large as the measured X-Y cosine)
-    sigma = np.hypot(np.sqrt(s2 / sgg), np.abs([a[2], b[2]]) * abs(cosine))
+    # 1σ: the fit's, and the neglected Z cross terms: the plate's slope in the commanded frame (a₃, b₃) times
+    # the cosine between the stage's Z axis and its X or Y axis, which nothing here measures. That cosine is the
+    # sum of two tilts (the X or Y axis out of the plate's plane, the Z axis off its normal); each is taken as
+    # large as the largest tilt the data show (the X-Y cosine, a₃, b₃). With tilts of 1e-2 the term is 1e-4,
+    # as large as the scale errors measured: the plate's reference is then no better than the stage's.
+    tilt = max(abs(cosine), abs(a[2]), abs(b[2]))
+    sigma = np.hypot(np.sqrt(s2 / sgg), np.abs([a[2], b[2]]) * 2 * tilt)
     return {"factor": [float(np.sqrt(gxx)), float(np.sqrt(gyy))], "sigma": [float(v) for v in sigma],
             "xy_cosine": float(cosine), "dots": int(inside.sum())}
 
