@@ -31,24 +31,22 @@ def image_motion(seq: pd.DataFrame) -> pd.DataFrame:
     its length) and the median image displacement [px] of the dots seen at both (the RMS over the four
     image coordinates), with the number of such dots."""
     seq = seq[seq[IMAGE_COLUMNS].notna().all(axis=1)]
-    positions = sorted(seq["position"].unique())
+    positions = np.sort(seq["position"].unique())
     if len(positions) < 2:
         return pd.DataFrame()
-    by_pos = {p: g.set_index(["row", "col"]) for p, g in seq.groupby("position")}
-    first = by_pos[positions[0]]
-    rows = []
-    for p in positions[1:]:
-        g = by_pos[p]
-        common = g.index.intersection(first.index)
-        d_stage = g[STAGE_COLUMNS].iloc[0].to_numpy(float) - first[STAGE_COLUMNS].iloc[0].to_numpy(float)
-        if len(common):
-            dw = g.loc[common, IMAGE_COLUMNS].to_numpy(float) - first.loc[common, IMAGE_COLUMNS].to_numpy(float)
-            moved = float(np.median(np.sqrt(np.mean(dw ** 2, axis=1))))
-        else:
-            moved = float("nan")
-        rows.append({"position": int(p), "dx_mm": d_stage[0], "dy_mm": d_stage[1], "dz_mm": d_stage[2],
-                     "commanded_mm": float(np.linalg.norm(d_stage)), "moved_px": moved, "dots": len(common)})
-    return pd.DataFrame(rows)
+    first = seq[seq["position"] == positions[0]].drop_duplicates(["row", "col"])
+    rest = seq[seq["position"] != positions[0]]
+    stage0 = first[STAGE_COLUMNS].iloc[0].to_numpy(float)
+    stage = rest.groupby("position")[STAGE_COLUMNS].first()
+    both = rest.merge(first[["row", "col", *IMAGE_COLUMNS]], on=["row", "col"], suffixes=("", "_0"))
+    dw = both[IMAGE_COLUMNS].to_numpy(float) - both[[f"{c}_0" for c in IMAGE_COLUMNS]].to_numpy(float)
+    moved = pd.Series(np.sqrt(np.mean(dw ** 2, axis=1)), index=both["position"].to_numpy()).groupby(level=0)
+    d_stage = stage.to_numpy(float) - stage0
+    out = pd.DataFrame({"position": stage.index.astype(int), "dx_mm": d_stage[:, 0], "dy_mm": d_stage[:, 1],
+                        "dz_mm": d_stage[:, 2], "commanded_mm": np.linalg.norm(d_stage, axis=1)})
+    out["moved_px"] = moved.median().reindex(stage.index).to_numpy()
+    out["dots"] = moved.size().reindex(stage.index).fillna(0).astype(int).to_numpy()
+    return out
 
 
 def check_stage_file(cal: CalibrationSet) -> None:

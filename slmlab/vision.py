@@ -84,28 +84,44 @@ class PaperParameters:
             m, o = c2 @ m, c2 @ o + [k["BZX_mm"], k["BZY_mm"], 0.0]
         return m, o
 
-    def reconstruct(self, w: np.ndarray, level: int | None = None, *, chunk: int = 1 << 16) -> np.ndarray:
+    def reconstruct(self, w: np.ndarray, level: int | None = None, *, chunk: int = 1 << 14) -> np.ndarray:
         """World coordinates ``(n, 3)`` [mm] by Model ``level`` (default: this model's level).
 
-        Vectorised in cache-sized chunks: steps 1–2 of the chain elementwise, the rest one 3 × 3 linear map
-        (:meth:`linear_map`). Equal to :meth:`reconstruct_stepwise` to rounding.
+        Vectorised in cache-sized chunks, in place: steps 1–2 of the chain elementwise on the chunk's four
+        contiguous coordinate rows, the rest one 3 × 3 linear map (:meth:`linear_map`), also elementwise (no BLAS
+        call, so no CPU-dependent kernel). Equal to :meth:`reconstruct_stepwise` to rounding.
         """
         w = np.asarray(w, float)
         m, o = self.linear_map(level)
         L, R, D = self.left, self.right, self.disparity
         ca, sa = np.cos(np.radians(self.alpha_deg)), np.sin(np.radians(self.alpha_deg))
         out = np.empty((len(w), 3))
+        buf, res = np.empty((4, chunk)), np.empty((3, chunk))
+        t_full, u_full = np.empty(chunk), np.empty(chunk)
         for a in range(0, len(w), chunk):
-            ww = w[a:a + chunk]
-            l1, l2, r1, r2 = ww[:, 0], ww[:, 1], ww[:, 2], ww[:, 3]
-            l2 = l2 + L.lam * l1 * l2                          # Eq 3
-            l1 = l1 + (L.a * l2 + L.b) * l2 + L.c              # Eq 6
-            r2 = r2 + R.lam * r1 * r2
-            r1 = r1 + (R.a * r2 + R.b) * r2 + R.c
-            r1, r2 = ca * r1 - sa * r2, sa * r1 + ca * r2 + self.dw2_px   # Eqs 9, 12
-            d = r1 - l1
-            d -= (D.aD * l1 + D.bD) * l1 + D.cD_px             # Eq 16
-            out[a:a + chunk] = np.column_stack([l1 + r1, l2 + r2, d]) @ m.T + o
+            n = min(chunk, len(w) - a)
+            b, t, u = buf[:, :n], t_full[:n], u_full[:n]
+            np.copyto(b, w[a:a + n].T)
+            l1, l2, r1, r2 = b
+            np.multiply(l1, l2, out=t); t *= L.lam; l2 += t                      # Eq 3: w2' = w2 (1 + λ w1)
+            np.multiply(l2, L.a, out=t); t += L.b; t *= l2; t += L.c; l1 += t   # Eq 6
+            np.multiply(r1, r2, out=t); t *= R.lam; r2 += t
+            np.multiply(r2, R.a, out=t); t += R.b; t *= r2; t += R.c; r1 += t
+            np.multiply(r1, ca, out=t); np.multiply(r2, sa, out=u); t -= u      # Eq 9: rotate by α
+            np.multiply(r1, sa, out=u); r2 *= ca; r2 += u; r2 += self.dw2_px     # Eq 12: + δw2
+            r1[:] = t
+            np.multiply(l1, D.aD, out=u); u += D.bD; u *= l1; u += D.cD_px     # Eq 16: the disparity's
+            np.subtract(r1, l1, out=t); t -= u                                  # distortion removed: D in t
+            l1 += r1
+            l2 += r2
+            for k in range(3):                                                  # world = M (Σw1, Σw2, D) + o
+                rk = res[k, :n]
+                rk.fill(o[k])
+                for j, v in enumerate((l1, l2, t)):
+                    if m[k, j] != 0.0:
+                        np.multiply(v, m[k, j], out=u)
+                        rk += u
+            out[a:a + n] = res[:, :n].T
         return out
 
     def reconstruct_stepwise(self, w: np.ndarray, level: int | None = None) -> np.ndarray:
