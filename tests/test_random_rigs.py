@@ -121,22 +121,31 @@ REMEDY = ("; ", " must ", " needs ", "give ", "use ", "fix ", "check ", "add ", 
           "recalibrate", "convert", "export")
 
 
+def damaged_set(m, session, how, seed, folder):
+    """A random session of microscope ``m``, damaged by ``how``, written to ``folder/set``: ``(cal, dir)``, or
+    ``None`` where the session images nothing or no row is left."""
+    try:
+        cal = slmlab.simulate_set(m, session, seed=seed)
+    except slmlab.SlmlabError:
+        event("session images nothing")
+        return None
+    cal = slmlab.CalibrationSet(corrupt(cal.points, how, np.random.default_rng(seed)), cal.meta)
+    if cal.points.empty:
+        event("no rows left")
+        return None
+    return cal, slmlab.write_set(folder / "set", cal)
+
+
 @given(m=microscopes(), data=st.data(), how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
 def test_every_verb_succeeds_or_says_what_to_do(m, data, how, seed, tmp_path_factory):
     session = data.draw(sessions(m))
     folder = tmp_path_factory.mktemp("rig")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        try:
-            cal = slmlab.simulate_set(m, session, seed=seed)
-        except slmlab.SlmlabError:
-            event("session images nothing")
+        made = damaged_set(m, session, how, seed, folder)
+        if made is None:
             return
-        cal = slmlab.CalibrationSet(corrupt(cal.points, how, np.random.default_rng(seed)), cal.meta)
-        if cal.points.empty:
-            event("no rows left")
-            return
-        d = slmlab.write_set(folder / "set", cal)
+        cal, d = made
         pts = folder / "points.csv"
         cal.points[["wl1", "wl2", "wr1", "wr2"]].dropna().head(50).to_csv(pts, index=False)
         for model in MODELS:
@@ -164,14 +173,10 @@ def test_the_pinhole_model_succeeds_or_says_what_to_do(m, data, how, seed, tmp_p
     folder = tmp_path_factory.mktemp("pin")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        try:
-            cal = slmlab.simulate_set(m, session, seed=seed)
-        except slmlab.SlmlabError:
+        made = damaged_set(m, session, how, seed, folder)
+        if made is None:
             return
-        cal = slmlab.CalibrationSet(corrupt(cal.points, how, np.random.default_rng(seed)), cal.meta)
-        if cal.points.empty:
-            return
-        d = slmlab.write_set(folder / "set", cal)
+        _, d = made
         out = folder / "pinhole.json"
         if check(*run("calibrate", d, "--model", "pinhole", "--option", "variant=standard", "--out", out), d):
             event("pinhole: calibrated")
