@@ -115,17 +115,11 @@ class ImagePair:
 # ------------------------------------------------------------------------------------------- the set's images
 def _stage_table(path: Path) -> pd.DataFrame:
     """``stage.csv``, validated like ``points.csv`` (every bad cell named by row and column)."""
-    from .io import _numeric, _read_csv_text, _require_columns
+    from .io import _read_csv_text, _require_columns, _sequence_position_stage
 
     df = _read_csv_text(path, STAGE_FILE)
     _require_columns(df, ["sequence", "position", *STAGE], path, STAGE_FILE)
-    out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
-    if (out["sequence"] == "").any():
-        k = int(np.flatnonzero(out["sequence"].to_numpy() == "")[0])
-        raise SlmlabError(f"row {k + 2}, column sequence: empty label; use grid, X, Y, Z or another name", path)
-    out["position"] = _numeric(df, "position", path, allow_empty=False, integer=True, minimum=1).astype(int)
-    for c in STAGE:
-        out[c] = _numeric(df, c, path, allow_empty=False)
+    out = _sequence_position_stage(df, path)
     for c in ("left_image", "right_image"):
         if c in df.columns:
             out[c] = df[c].astype(str).str.strip()

@@ -261,6 +261,19 @@ def _check_plausible(df: pd.DataFrame, meta: dict | None, path: Path) -> None:
                               "mm); are the positions in µm? give them in mm", path)
 
 
+def _sequence_position_stage(df: pd.DataFrame, path) -> pd.DataFrame:
+    """The columns every stage-position table shares (``points.csv``, ``stage.csv``): ``sequence`` (a
+    non-empty label), ``position`` (an integer from 1) and ``stage_x_mm, stage_y_mm, stage_z_mm``, checked."""
+    out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
+    if (out["sequence"] == "").any():
+        k = int(np.flatnonzero(out["sequence"].to_numpy() == "")[0])
+        raise SlmlabError(f"row {k + 2}, column sequence: empty label; use grid, X, Y, Z or another name", path)
+    out["position"] = _numeric(df, "position", path, allow_empty=False, integer=True, minimum=1).astype(int)
+    for c in STAGE_COLUMNS:
+        out[c] = _numeric(df, c, path, allow_empty=False)
+    return out
+
+
 def _require_columns(df: pd.DataFrame, cols: list[str], path: Path, what: str) -> None:
     missing = [c for c in cols if c not in df.columns]
     if missing:
@@ -364,13 +377,7 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
     df = _read_csv_text(pfile, "points.csv")
     _require_columns(df, POINT_COLUMNS, pfile, "points.csv")
     notes: list[str] = []
-    out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
-    if (out["sequence"] == "").any():
-        k = int(np.flatnonzero(out["sequence"].to_numpy() == "")[0])
-        raise SlmlabError(f"row {k + 2}, column sequence: empty label; use grid, X, Y, Z or another name", pfile)
-    out["position"] = _numeric(df, "position", pfile, allow_empty=False, integer=True, minimum=1).astype(int)
-    for c in STAGE_COLUMNS:
-        out[c] = _numeric(df, c, pfile, allow_empty=False)
+    out = _sequence_position_stage(df, pfile)
     for c in ("row", "col"):
         out[c] = _numeric(df, c, pfile, allow_empty=False, integer=True, minimum=1).astype(int)
     for c in IMAGE_COLUMNS:
