@@ -8,11 +8,27 @@ machine vary by ±50 %.
 from __future__ import annotations
 
 import json
+import os
 import platform
 import time
+import tracemalloc
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
+import cv2
 import numpy as np
+
+from .datasets import converters
+from .explore import explore_microscope, explore_models, explore_steps
+from .images.dots import as_8bit, read_image
+from .images.extract import choose_method, extract_image
+from .io import IMAGE_COLUMNS, atomic_write_text
+from .models import calibrate
+from .outputs import SHARED_DIR
+from .virtual.presets import preset
+from .virtual.render import render_pair, render_plate, render_view
+from .virtual.sessions import paper_test, zstack_plate, zstack_session
+from .virtual.simulate import simulate_set, stage_origin
 
 __all__ = ["BenchLine", "best_time", "run"]
 
@@ -46,10 +62,6 @@ def best_time(fn, repeat: int = 5) -> float:
 
 
 def _bench_simulate() -> BenchLine:
-    import cv2
-
-    from .simulate import paper_test, preset, simulate_set
-
     m = preset("paper")
     session = paper_test(1)
     ours = best_time(lambda: simulate_set(m, session, seed=0), repeat=5)
@@ -66,8 +78,6 @@ def _bench_simulate() -> BenchLine:
 
 
 def _render_scene():
-    from .simulate import paper_test, preset, simulate_set, stage_origin
-
     m = preset("paper")
     session = paper_test(1)
     cal = simulate_set(m, session, seed=0)
@@ -79,8 +89,6 @@ def _render_scene():
 
 
 def _bench_render() -> BenchLine:
-    from .render import render_pair
-
     m, _, p = _render_scene()
     rngs = lambda: (np.random.default_rng(1), np.random.default_rng(2))  # noqa: E731
     render_pair(m, p, m.moving_plate, *rngs())  # warm the caches (illumination, PSF)
@@ -91,11 +99,6 @@ def _bench_render() -> BenchLine:
 
 
 def _bench_extract() -> list[BenchLine]:
-    import cv2
-
-    from .extract import extract_image
-    from .render import render_view
-
     m, rows, p = _render_scene()
     img = render_view(m, p, m.moving_plate, "l", np.random.default_rng(1))
     truth = rows.set_index(["row", "col"])[["wl1", "wl2"]]
@@ -122,8 +125,6 @@ def _bench_extract() -> list[BenchLine]:
                        "cv2.findCirclesGrid (SimpleBlobDetector), same image", ref, "<= 50 ms per image",
                        ours <= 0.05, f"our RMS {ours_rms:.4f} px per coordinate; {ref_note}")]
     # the 27 x 29 grid image: 783 dots
-    from .simulate import paper_test, simulate_set, stage_origin
-
     cal = simulate_set(m, paper_test(1), seed=0)
     g = cal.truth[cal.truth["sequence"] == "grid"]
     pg = m.stage_to_microscope(g[["X_mm", "Y_mm", "Z_mm"]].to_numpy(), stage_origin(m, paper_test(1)))
@@ -139,8 +140,6 @@ def _bench_extract() -> list[BenchLine]:
 def opencv_reference_triangulation(n: int = 1_000_000):
     """What a user would otherwise run on ``n`` point quadruples: ``cv2.undistortPoints`` on both views and
     ``cv2.triangulatePoints`` (a calibrated stereo pinhole pair with 5-term distortion)."""
-    import cv2
-
     rng = np.random.default_rng(0)
     w = rng.uniform(100, 1900, size=(n, 4))
     K = np.array([[1e5, 0, 1024.0], [0, 1e5, 1024.0], [0, 0, 1]])
@@ -157,13 +156,6 @@ def opencv_reference_triangulation(n: int = 1_000_000):
 
 
 def _bench_paper_models() -> list[BenchLine]:
-    import tracemalloc
-
-    import cv2
-
-    from .models import calibrate
-    from .simulate import paper_test, preset, simulate_set
-
     cal = simulate_set(preset("paper"), paper_test(1), seed=0)
     cal_t = best_time(lambda: calibrate(cal, "paper-m2"), repeat=3)
     model = calibrate(cal, "paper-m2")
@@ -207,21 +199,11 @@ def _bench_paper_models() -> list[BenchLine]:
 
 def _bench_real_rigs() -> list[BenchLine]:
     """Images as a camera writes them (16 bit, bright dots) and the stereo-PIV model."""
-    import cv2
-
-    from . import thirdparty
-    from .extract import choose_method, extract_image, read_image
-    from .models import calibrate
-    from .paths import SHARED_DIR
-    from .simulate import zstack_plate, zstack_session, preset, simulate_set
-
     lines = []
-    real = SHARED_DIR / "realdata" / thirdparty.PIV_CHALLENGE_DIR / "Camera_01" / "E_camera_1_z_4.tif"
+    real = SHARED_DIR / "realdata" / converters.PIV_CHALLENGE_DIR / "Camera_01" / "E_camera_1_z_4.tif"
     if real.exists():
         img, what = read_image(real), "PIV Challenge case E, camera 1 (real, 61 dots, two levels)"
     else:  # the same kind of image, made: a rendered plate, inverted and scaled to 16 bit
-        from .render import render_plate
-
         m = preset("paper")
         rendered, _ = render_plate(m, m.moving_plate, (0.0, 0.0, 0.0), seed=1)
         img = ((255 - cv2.resize(rendered, (1024, 1024), interpolation=cv2.INTER_AREA)).astype(np.uint16) * 257)
@@ -235,8 +217,6 @@ def _bench_real_rigs() -> list[BenchLine]:
     params.blobColor = 255
     params.filterByArea, params.minArea, params.maxArea = True, 100, 20000
     det = cv2.SimpleBlobDetector_create(params)
-    from .extract import as_8bit
-
     img8 = as_8bit(img)
     ref = best_time(lambda: det.detect(img8), repeat=7)
     lines.append(BenchLine(f"extract one 1024 x 1024 16-bit image ({what}; polarity decided, {method}, indexed)",
@@ -259,11 +239,7 @@ def _bench_real_rigs() -> list[BenchLine]:
 
 
 def _bench_explorer() -> list[BenchLine]:
-    from .explore import explore_microscope, explore_models
-
     lines = []
-    from .explore import explore_steps
-
     for name, make in (("virtual microscope", explore_microscope), ("paper models", explore_models),
                        ("step study", explore_steps)):
         box = make()
@@ -278,9 +254,6 @@ BENCHES = [_bench_simulate, _bench_render, _bench_extract, _bench_real_rigs, _be
 
 
 def machine() -> str:
-    import os
-
-    import cv2
     cpu = ""
     try:
         with open("/proc/cpuinfo") as fh:
@@ -312,18 +285,12 @@ def markdown(lines: list[BenchLine], reproduce_s: float | None = None) -> str:
 
 def run(as_json: bool = False, markdown_path=None, reproduce_seconds_file=None) -> int:
     """Run every benchmark and print a table (or JSON); optionally write the Markdown table; return 0."""
-    import cv2
-
     cv2.setNumThreads(1)
     lines = []
     for b in BENCHES:
         out = b()
         lines.extend(out if isinstance(out, list) else [out])
     if markdown_path is not None:
-        from pathlib import Path
-
-        from .io import atomic_write_text
-
         rep = None
         if reproduce_seconds_file and Path(reproduce_seconds_file).exists():
             rep = float(Path(reproduce_seconds_file).read_text().strip())

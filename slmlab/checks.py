@@ -1,11 +1,11 @@
 """Checks that a calibration set can say what a model will be asked to say (run by :func:`slmlab.calibrate`).
 
 A stage file can be wrong in ways no column check sees: a position copied from the row above, a sequence
-whose stage never moved while its dots did, an ``X`` sequence that moves along Y. And a set can leave an
-axis undetermined: no stage motion along it, and no plate lattice or known target to give it. A model fitted
-anyway returns a map, and it is silently wrong. These checks compare each sequence's commanded moves with how
-far its dots moved in the images, and ask of each world axis where its scale comes from; anything wrong is a
-:class:`slmlab.SlmlabError` that names the sequence, the position and what to check.
+whose stage never moved while its dots did, an ``X`` sequence that moves along Y. A model fitted anyway
+returns a map, and it is silently wrong. These checks compare each sequence's commanded moves with how far
+its dots moved in the images; anything wrong is a :class:`slmlab.SlmlabError` that names the sequence, the
+position and what to check. (Whether each world axis is determined at all is asked by
+:func:`slmlab.models.frames.check_axes`.)
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pandas as pd
 from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
 
-__all__ = ["image_motion", "check_stage_file", "check_axes", "MOVED_PX", "STILL_PX"]
+__all__ = ["image_motion", "check_stage_file", "MOVED_PX", "STILL_PX", "STAGE_SEQUENCES"]
 
 #: dots that moved more than this between two positions [px] did move (centroid noise is ≤ 0.1 px)
 MOVED_PX = 1.0
@@ -85,17 +85,3 @@ def check_stage_file(cal: CalibrationSet) -> None:
                                   where)
 
 
-def check_axes(world: np.ndarray, mode: str, path=None) -> None:
-    """Each world axis must be determined by the calibration rows (``world``: where their dots are, as
-    :func:`slmlab.direct.world_positions` gives): stage motion along it, or a plate lattice or known target
-    that spreads the dots along it. Raise naming the axes that are not, and the remedy."""
-    span = np.nanmax(world, axis=0) - np.nanmin(world, axis=0) if len(world) else np.zeros(3)
-    missing = [c for c, v in zip("XYZ", span) if not v > 0]
-    if not missing:
-        return
-    how = {"moves": "no sequence moves the stage along it",
-           "zstack": "the Z stack's plate and stage do not spread the dots along it",
-           "target": "neither the stage nor the target's own x_mm, y_mm, z_mm spread the dots along it"}[mode]
-    remedy = ("add a sequence along it (or a Z stack of a plate with rows and cols for X, Y)" if mode == "moves"
-              else "add stage positions along it or use a target that spans it")
-    raise SlmlabError(f"{', '.join(missing)} cannot be determined: {how}; {remedy}", path)

@@ -1,4 +1,4 @@
-"""The command line (DATA_FORMAT.md): ``python -m slmlab VERB ...``.
+"""The command line: ``python -m slmlab VERB ...`` (README, "The virtual microscope from the command line").
 
 Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``grip``, ``bench``.
 Every error a user can cause ends with exit status 2 and one line on stderr; outputs are written
@@ -8,12 +8,26 @@ atomically.
 from __future__ import annotations
 
 import argparse
+import inspect
+import json
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from .bench import run as run_bench
 from .errors import SlmlabError
+from .gripping import grip
+from .images.imageset import extract_set
+from .io import IMAGE_COLUMNS, CalibrationSet, read_points, read_set, write_csv, write_set
+from .models import available_models, calibrate, default_model_name, get_model_class, load_model
+from .paper.evaluation import evaluate
+from .studies.extraction import extraction_errors, extraction_summary
+from .virtual.presets import preset
+from .virtual.render import render_set
+from .virtual.sessions import paper_test, validation_session
+from .virtual.simulate import simulate_set
 
 EXIT_USER_ERROR = 2
 
@@ -80,9 +94,6 @@ def _parser() -> argparse.ArgumentParser:
 
 # ------------------------------------------------------------------------------------------------ verbs
 def _simulate(a) -> int:
-    from .io import write_set
-    from .simulate import paper_test, preset, simulate_set, validation_session
-
     microscope = preset(a.preset)
     session = validation_session() if a.validation else paper_test(a.test)
     cal = simulate_set(microscope, session, seed=a.seed)
@@ -91,17 +102,12 @@ def _simulate(a) -> int:
     print(f"wrote {a.out_dir}: {len(cal.points)} rows ({n} seen in both views), "
           f"sequences {', '.join(cal.sequences)}")
     if a.images:
-        from .render import render_set
-
         written = render_set(cal, a.out_dir)
         print(f"rendered {len(written)} images into {a.out_dir / 'images'}")
     return 0
 
 
 def _extract(a) -> int:
-    from .extract import extract_set, extraction_errors, extraction_summary
-    from .io import CalibrationSet, read_set, write_csv
-
     points, notes = extract_set(a.cal_dir, method=a.method)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
@@ -118,20 +124,12 @@ def _extract(a) -> int:
 
 
 def _models(a) -> int:
-    from .models import available_models
-
-    models = available_models()
-    if not models:
-        print("(no vision model is implemented yet: the paper's models arrive with §3-§5)")
-    for name, cls in models.items():
+    for name, cls in available_models().items():
         print(f"{name}\t{cls.summary}")
     return 0
 
 
 def _calibrate(a) -> int:
-    from .io import read_set
-    from .models import calibrate
-
     if not a.out.parent.exists():
         raise SlmlabError(f"the folder {a.out.parent} does not exist; create it or choose another --out", a.out)
     options = _model_options(a.model, a.option)
@@ -157,11 +155,6 @@ def _calibrate(a) -> int:
 def _model_options(name: str | None, pairs: list[str]) -> dict:
     """``NAME=VALUE`` pairs as keyword options of the model's ``fit`` (values read as JSON where they parse,
     else as text); an option the model does not take is an error."""
-    import inspect
-    import json
-
-    from .models import default_model_name, get_model_class
-
     cls = get_model_class(name or default_model_name())
     known = [p.name for p in inspect.signature(cls.fit).parameters.values()
              if p.kind is inspect.Parameter.KEYWORD_ONLY]
@@ -179,12 +172,9 @@ def _model_options(name: str | None, pairs: list[str]) -> dict:
 
 
 def _reconstruct(a) -> int:
-    from .io import read_points, write_csv
-    from .models import load_model
-
     model = load_model(a.model)
     df = read_points(a.points)
-    w = df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    w = df[IMAGE_COLUMNS].to_numpy(float)
     xyz = np.full((len(w), 3), np.nan)
     ok = np.isfinite(w).all(axis=1)
     xyz[ok] = model.reconstruct(w[ok])
@@ -201,13 +191,6 @@ def _reconstruct(a) -> int:
 
 
 def _evaluate(a) -> int:
-    from .io import read_set
-    from .models import load_model
-
-    import json
-
-    from .evaluation import evaluate
-
     model = load_model(a.model)
     cal = read_set(a.cal_dir)
     for note in cal.notes:
@@ -218,11 +201,6 @@ def _evaluate(a) -> int:
 
 
 def _grip(a) -> int:
-    import json
-
-    from .gripping import grip
-    from .models import default_model_name, get_model_class
-
     name = a.model or default_model_name()
     get_model_class(name)  # unknown names are a user error before any work
     ep = grip(a.seed, name)
@@ -236,9 +214,7 @@ def _grip(a) -> int:
 
 
 def _bench(a) -> int:
-    from .bench import run
-
-    return run(as_json=a.json, markdown_path=a.markdown, reproduce_seconds_file=a.reproduce_seconds_file)
+    return run_bench(as_json=a.json, markdown_path=a.markdown, reproduce_seconds_file=a.reproduce_seconds_file)
 
 
 VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibrate": _calibrate,
@@ -247,8 +223,6 @@ VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibra
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit status (0 success, 2 user error)."""
-    import cv2
-
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # our errors are one line; OpenCV's are not
     args = _parser().parse_args(argv)
     try:

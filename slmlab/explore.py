@@ -22,12 +22,19 @@ from io import BytesIO
 
 import numpy as np
 import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
-from .alignment import disparity_table, estimate_alignment
-from .distortion import estimate_distortion
-from .evaluation import RESIDUAL_INTERVALS_MM, evaluate
-from .simulate import Session, paper_test, preset, simulate_set, validation_session
-from .study import TABLE4_NAMES
+from .models import calibrate, default_model_name
+from .paper.alignment import disparity_table, estimate_alignment
+from .paper.chain import fit_paper
+from .paper.distortion import estimate_distortion
+from .paper.evaluation import RESIDUAL_INTERVALS_MM, evaluate
+from .paper.tables import TABLE4_NAMES
+from .virtual.presets import preset
+from .virtual.sessions import Session, paper_test, validation_session
+from .virtual.simulate import simulate_set
 
 __all__ = ["microscope_state", "model_state", "step_state", "explore_microscope", "explore_models", "explore_steps",
            "draw_microscope", "draw_models", "draw_steps"]
@@ -35,9 +42,6 @@ __all__ = ["microscope_state", "model_state", "step_state", "explore_microscope"
 
 # ------------------------------------------------------------------------------------------ helpers
 def _figure(width_in: float, height_in: float):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     # a fixed layout: constrained layout would be re-solved on every redraw (most of an update's time)
     fig = Figure(figsize=(width_in, height_in))
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.1, top=0.92, wspace=0.35, hspace=0.55)
@@ -53,7 +57,7 @@ def _png(fig) -> bytes:
 
 def _box(controls: dict, compute, draw, fig, title: str):
     """Assemble controls, a status line and the figure image; wire the observers."""
-    import ipywidgets as W
+    import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     image = W.Image(format="png")
     status = W.HTML()
@@ -142,7 +146,7 @@ def draw_microscope(state: dict, fig) -> None:
 def explore_microscope(**defaults):
     """The virtual microscope's knobs; live: image-plane tracks, the disparity parabola, Table 1–2 estimates
     beside the simulator's first-order values (under the figure, in ``box.table``)."""
-    import ipywidgets as W
+    import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     def slider(cls, value, lo, hi, step, desc):
         return cls(value=defaults.get(desc, value), min=lo, max=hi, step=step, description=desc,
@@ -176,8 +180,6 @@ def _model_sets(seed: int):
 
 @lru_cache(maxsize=16)
 def _evaluation(model: str, seed: int):
-    from .models import calibrate, default_model_name
-
     cal, val = _model_sets(seed)
     name = default_model_name() if model == "default" else model
     options = {"variant": "standard"} if name == "pinhole" else {}
@@ -196,8 +198,6 @@ def draw_models(state: dict, fig) -> None:
     """3 × 3 residual panels (Figs 13–15 style) with ±interval, and S at the interval (Figs 12/16 style).
 
     The axes are made once; later calls only update the artists' data (most of an update's time otherwise)."""
-    from matplotlib.ticker import MaxNLocator
-
     res, a = state["residuals"], state["interval_mm"]
     art = getattr(fig, "_slmlab_artists", None)
     if art is None:
@@ -244,7 +244,7 @@ def draw_models(state: dict, fig) -> None:
 def explore_models(**defaults):
     """Model level (0, 1, 2, pinhole, default) and residual interval; live: the nine residual elements and
     the S coefficients."""
-    import ipywidgets as W
+    import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     controls = {
         "model": W.ToggleButtons(options=["paper-m0", "paper-m1", "paper-m2", "pinhole", "default"],
@@ -259,8 +259,6 @@ def explore_models(**defaults):
 def step_state(*, step_mm: float = 0.3, positions: int = 10, repeats: int = 3, seed: int = 1) -> dict:
     """The twelve parameters over ``repeats`` fresh calibrations at one step and number of positions per
     axis: ``fits`` (one row per repeat) and ``spread`` (mean, std, relative std per parameter)."""
-    from .vision import fit_paper
-
     m = preset("paper")
     session = Session(step_mm=step_mm, positions=(positions, positions, positions), grid=True, name="study")
     seeds = np.random.SeedSequence(seed).generate_state(repeats)
@@ -294,7 +292,7 @@ def draw_steps(state: dict, fig) -> None:
 
 def explore_steps(**defaults):
     """Interval distance and number of positions; live: the twelve parameters' spread."""
-    import ipywidgets as W
+    import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     controls = {
         "step_mm": W.FloatSlider(value=defaults.get("step_mm", 0.3), min=0.1, max=0.5, step=0.05, description="step_mm",

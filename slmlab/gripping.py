@@ -27,10 +27,15 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+import pandas as pd
 
 from .errors import SlmlabError
-from .microscope import Microscope
-from .render import expose
+from .models import calibrate
+from .virtual.microscope import Microscope
+from .virtual.presets import preset
+from .virtual.render import expose
+from .virtual.sessions import paper_test
+from .virtual.simulate import simulate_set
 
 __all__ = ["Scene", "render_scene", "GripperModel", "build_gripper_model", "locate_gripper", "locate_wire",
            "locate_pad", "Episode", "run_episode", "model_origin_offset", "row_map", "grip", "wire_mask",
@@ -467,9 +472,6 @@ def grip(seed: int = 0, model_name: str | None = None, *, preset_name: str = "pa
          calibrated=None, **episode_options) -> Episode:
     """One episode end to end: simulate a Test 1 calibration set, calibrate ``model_name`` (default: the
     most accurate model), rotate the object to a wire chosen by the seed, and run the loop."""
-    from .models import calibrate
-    from .simulate import paper_test, preset, simulate_set
-
     m = preset(preset_name)
     if calibrated is None:
         cal = simulate_set(m, paper_test(1), seed=calibration_seed)
@@ -483,8 +485,6 @@ def grip(seed: int = 0, model_name: str | None = None, *, preset_name: str = "pa
 
 def episodes_table(models: dict, seeds, **kw):
     """Episodes over seeds for several calibrated models ``{name: (model, calibration set)}``: one row each."""
-    import pandas as pd
-
     rows = []
     for name, calibrated in models.items():
         for seed in seeds:

@@ -1,5 +1,5 @@
-"""Reading and writing slmlab's interchange format (``../shared/DATA_FORMAT.md``): calibration sets, point
-tables, and atomic writes.
+"""Reading and writing slmlab's interchange format (README, "Bring your own measured dot centres"):
+calibration sets, point tables, and atomic writes.
 
 A calibration set is a folder with ``points.csv`` (one row per sequence, stage position and grid point),
 ``meta.json`` (format version, image size, plates), optionally ``images/`` and, for simulated sets,
@@ -14,6 +14,7 @@ import math
 import os
 import tempfile
 from dataclasses import dataclass, field
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,11 @@ __all__ = [
     "write_csv",
     "atomic_write_text",
     "atomic_write_bytes",
+    "json_text",
+    "read_csv_text",
+    "read_meta",
+    "require_columns",
+    "sequence_position_stage",
 ]
 
 SET_FORMAT = "slmlab-calibration/1"
@@ -173,7 +179,7 @@ def json_text(obj) -> str:
 
 
 # ---------------------------------------------------------------------------------------- reading CSV
-def _read_csv_text(path: Path, what: str) -> pd.DataFrame:
+def read_csv_text(path: Path, what: str) -> pd.DataFrame:
     """Read a CSV file as strings, turning every way it can be unreadable into a SlmlabError."""
     if not path.exists():
         raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see DATA_FORMAT.md)", path)
@@ -189,8 +195,6 @@ def _read_csv_text(path: Path, what: str) -> pd.DataFrame:
     except UnicodeDecodeError as exc:
         raise SlmlabError(f"{what} is not UTF-8 text (byte {exc.start}); save it as UTF-8 CSV", path) from None
     try:
-        from io import StringIO
-
         df = pd.read_csv(StringIO(text), dtype=str, keep_default_na=False, skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
@@ -261,7 +265,7 @@ def _check_plausible(df: pd.DataFrame, meta: dict | None, path: Path) -> None:
                               "mm); are the positions in µm? give them in mm", path)
 
 
-def _sequence_position_stage(df: pd.DataFrame, path) -> pd.DataFrame:
+def sequence_position_stage(df: pd.DataFrame, path) -> pd.DataFrame:
     """The columns every stage-position table shares (``points.csv``, ``stage.csv``): ``sequence`` (a
     non-empty label), ``position`` (an integer from 1) and ``stage_x_mm, stage_y_mm, stage_z_mm``, checked."""
     out = pd.DataFrame({"sequence": df["sequence"].astype(str).str.strip()})
@@ -274,7 +278,7 @@ def _sequence_position_stage(df: pd.DataFrame, path) -> pd.DataFrame:
     return out
 
 
-def _require_columns(df: pd.DataFrame, cols: list[str], path: Path, what: str) -> None:
+def require_columns(df: pd.DataFrame, cols: list[str], path: Path, what: str) -> None:
     missing = [c for c in cols if c not in df.columns]
     if missing:
         raise SlmlabError(f"{what} lacks column{'s' if len(missing) > 1 else ''} {', '.join(missing)}; "
@@ -287,15 +291,15 @@ def read_points(path: str | os.PathLike) -> pd.DataFrame:
     Other columns pass through unchanged (as text). Empty image coordinates become NaN.
     """
     path = Path(path)
-    df = _read_csv_text(path, "the points file")
-    _require_columns(df, IMAGE_COLUMNS, path, "the points file")
+    df = read_csv_text(path, "the points file")
+    require_columns(df, IMAGE_COLUMNS, path, "the points file")
     for c in IMAGE_COLUMNS:
         df[c] = _numeric(df, c, path, allow_empty=True)
     return df
 
 
 # ---------------------------------------------------------------------------------------- sets
-def _read_meta(path: Path) -> dict:
+def read_meta(path: Path) -> dict:
     if not path.exists():
         raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see DATA_FORMAT.md)", path)
     if path.is_dir():
@@ -364,20 +368,30 @@ def _positive(v, integer: bool) -> bool:
 def read_set(path: str | os.PathLike) -> CalibrationSet:
     """Read a calibration set folder (``points.csv``, ``meta.json``, optional ``truth.csv``).
 
-    Validates the format (DATA_FORMAT.md) and raises :class:`SlmlabError` on anything malformed. Exact
-    duplicate rows are dropped and reported in ``notes``; duplicates that disagree are an error.
+    Validates the format (README, "Bring your own measured dot centres") and raises :class:`SlmlabError` on
+    anything malformed. Exact duplicate rows are dropped and reported in ``notes``; duplicates that disagree
+    are an error.
     """
     path = Path(path)
     if not path.exists():
         raise SlmlabError("calibration set folder not found; give the folder that holds points.csv and meta.json", path)
     if not path.is_dir():
         raise SlmlabError("is a file; give the calibration set's folder (with points.csv and meta.json)", path)
-    meta = _read_meta(path / "meta.json")
+    meta = read_meta(path / "meta.json")
     pfile = path / "points.csv"
-    df = _read_csv_text(pfile, "points.csv")
-    _require_columns(df, POINT_COLUMNS, pfile, "points.csv")
-    notes: list[str] = []
-    out = _sequence_position_stage(df, pfile)
+    out, given = _point_columns(read_csv_text(pfile, "points.csv"), meta, pfile)
+    _check_plate_indices(out, meta, bool(given), path)
+    out, notes = _drop_duplicates(out, given, pfile)
+    _check_one_stage_position(out, pfile)
+    truth = _read_truth(path / "truth.csv")
+    return CalibrationSet(points=out, meta=meta, truth=truth, path=path, notes=notes)
+
+
+def _point_columns(df: pd.DataFrame, meta: dict, pfile: Path) -> tuple[pd.DataFrame, list[str]]:
+    """``points.csv``'s columns parsed and checked: the key, stage and image columns, the known-target
+    columns that are given, and any extra column as text. Returns the table and the target columns given."""
+    require_columns(df, POINT_COLUMNS, pfile, "points.csv")
+    out = sequence_position_stage(df, pfile)
     for c in ("row", "col"):
         out[c] = _numeric(df, c, pfile, allow_empty=False, integer=True, minimum=1).astype(int)
     for c in IMAGE_COLUMNS:
@@ -395,9 +409,14 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
     extra = [c for c in df.columns if c not in POINT_COLUMNS and c not in TARGET_COLUMNS]
     for c in extra:
         out[c] = df[c]
+    return out, given
 
-    # plates and plate indices
+
+def _check_plate_indices(out: pd.DataFrame, meta: dict, known_target: bool, path: Path) -> None:
+    """Every sequence has its plate in ``meta.json``, and every ``row, col`` lies on it (a plate without a
+    size needs the known-target columns)."""
     plates = meta["plates"]
+    pfile = path / "points.csv"
     for is_grid, name in ((True, "grid"), (False, "moving")):
         rows = out[(out["sequence"] == "grid") == is_grid]
         if rows.empty:
@@ -406,7 +425,7 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
             raise SlmlabError(f"sequence{'s' if not is_grid else ''} {'grid' if is_grid else 'other than grid'} "
                               f"need plates.{name} in meta.json", path / "meta.json")
         if plates[name].get("rows") is None:
-            if not given:
+            if not known_target:
                 raise SlmlabError(f"plates.{name} has no rows and cols (a plate larger than the field), so its "
                                   "frame comes from x_mm, y_mm, z_mm columns, which points.csv lacks; give the "
                                   "plate's size or extract the set with 'python -m slmlab extract'", path / "meta.json")
@@ -418,23 +437,27 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
                 raise SlmlabError(f"row {k + 2}, column {c}: {rows[c][k]} is outside the {name} plate "
                                   f"({plates[name]['rows']} × {plates[name]['cols']}); fix the index or meta.json", pfile)
 
-    # duplicates
+
+def _drop_duplicates(out: pd.DataFrame, given: list[str], pfile: Path) -> tuple[pd.DataFrame, list[str]]:
+    """Exact duplicate rows dropped (and said in the notes); duplicates that disagree are an error."""
     key = out[KEY_COLUMNS]
     dup = key.duplicated(keep=False)
-    if dup.any():
-        groups = out[dup].groupby(KEY_COLUMNS, sort=False)
-        for _, g in groups:
-            vals = g[STAGE_COLUMNS + IMAGE_COLUMNS + given].to_numpy(float)
-            same = np.all((vals == vals[0]) | (np.isnan(vals) & np.isnan(vals[0])))
-            if not same:
-                k = int(g.index[1])
-                raise SlmlabError(f"row {k + 2}: duplicates row {int(g.index[0]) + 2} (same sequence, position, row, col) "
-                                  "with different values; keep one of them", pfile)
-        n = int(key.duplicated().sum())
-        out = out[~key.duplicated()].reset_index(drop=True)
-        notes.append(f"{n} exact duplicate row{'s' if n > 1 else ''} dropped from points.csv")
+    if not dup.any():
+        return out, []
+    for _, g in out[dup].groupby(KEY_COLUMNS, sort=False):
+        vals = g[STAGE_COLUMNS + IMAGE_COLUMNS + given].to_numpy(float)
+        same = np.all((vals == vals[0]) | (np.isnan(vals) & np.isnan(vals[0])))
+        if not same:
+            k = int(g.index[1])
+            raise SlmlabError(f"row {k + 2}: duplicates row {int(g.index[0]) + 2} (same sequence, position, row, col) "
+                              "with different values; keep one of them", pfile)
+    n = int(key.duplicated().sum())
+    out = out[~key.duplicated()].reset_index(drop=True)
+    return out, [f"{n} exact duplicate row{'s' if n > 1 else ''} dropped from points.csv"]
 
-    # one stage position per (sequence, position)
+
+def _check_one_stage_position(out: pd.DataFrame, pfile: Path) -> None:
+    """Every row of one (sequence, position) carries the same commanded stage position."""
     spread = out.groupby(["sequence", "position"], sort=False)[STAGE_COLUMNS].agg(lambda v: v.max() - v.min())
     bad = spread.max(axis=1) > 1e-9
     if bad.any():
@@ -442,17 +465,19 @@ def read_set(path: str | os.PathLike) -> CalibrationSet:
         raise SlmlabError(f"sequence {s}, position {p}: rows disagree on the stage position; "
                           "every row of one position must carry the same stage_x_mm, stage_y_mm, stage_z_mm", pfile)
 
-    truth = None
-    tfile = path / "truth.csv"
-    if tfile.exists():
-        tdf = _read_csv_text(tfile, "truth.csv")
-        _require_columns(tdf, TRUTH_COLUMNS, tfile, "truth.csv")
-        truth = pd.DataFrame({"sequence": tdf["sequence"].astype(str).str.strip()})
-        for c in ("position", "row", "col"):
-            truth[c] = _numeric(tdf, c, tfile, allow_empty=False, integer=True, minimum=1).astype(int)
-        for c in TRUTH_COLUMNS[4:]:
-            truth[c] = _numeric(tdf, c, tfile, allow_empty=False)
-    return CalibrationSet(points=out, meta=meta, truth=truth, path=path, notes=notes)
+
+def _read_truth(tfile: Path) -> pd.DataFrame | None:
+    """``truth.csv`` of a simulated set, or ``None`` where there is none."""
+    if not tfile.exists():
+        return None
+    tdf = read_csv_text(tfile, "truth.csv")
+    require_columns(tdf, TRUTH_COLUMNS, tfile, "truth.csv")
+    truth = pd.DataFrame({"sequence": tdf["sequence"].astype(str).str.strip()})
+    for c in ("position", "row", "col"):
+        truth[c] = _numeric(tdf, c, tfile, allow_empty=False, integer=True, minimum=1).astype(int)
+    for c in TRUTH_COLUMNS[4:]:
+        truth[c] = _numeric(tdf, c, tfile, allow_empty=False)
+    return truth
 
 
 def write_set(path: str | os.PathLike, cal: CalibrationSet) -> Path:

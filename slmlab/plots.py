@@ -6,11 +6,13 @@ and returns the Axes. Names follow the paper's figures.
 
 from __future__ import annotations
 
+import cv2
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Circle, Polygon, Rectangle
 
 from .io import CalibrationSet
-from .microscope import Microscope
+from .virtual.microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
            "plot_image_tracks", "plot_depth_response", "plot_error_vs_defocus", "plot_plate_index",
@@ -164,7 +166,7 @@ def plot_depth_response(responses: dict, axes=None):
     Parameters
     ----------
     responses
-        label -> DataFrame of :func:`slmlab.simulate.depth_response`.
+        label -> DataFrame of :func:`slmlab.virtual.microscope.depth_response`.
     """
     if axes is None:
         _, axes = new_figure(1, 2, width_in=9.0, height_in=3.6)
@@ -190,7 +192,7 @@ def plot_depth_response(responses: dict, axes=None):
 
 def plot_error_vs_defocus(by_depth, ax=None, *, depth_of_field_mm: float = 1.13, targets=(0.03, 0.05)):
     """Centre RMS error [px] against height above the focal plane, one line per method
-    (``by_depth`` from :func:`slmlab.extract.error_by_defocus`); the targets and the depth of field drawn."""
+    (``by_depth`` from :func:`slmlab.images.extract.error_by_defocus`); the targets and the depth of field drawn."""
     ax = _ax(ax)
     for method, d in by_depth.groupby("method"):
         ax.plot(d["z_bin_mm"], d["rms_px"], "o-", ms=3, label=method)
@@ -227,8 +229,6 @@ def plot_plate_index(rows: int, cols: int, ax=None, *, show: int = 5):
 def plot_dots_on_image(image, table, ax=None, *, title: str = "", reduce: int = 4):
     """An image (shown at 1/``reduce`` scale) with the extracted dots connected row by row (red) and
     column by column (blue), as in the paper's Fig 3b–c. ``table`` has ``row, col, w1, w2``."""
-    import cv2
-
     ax = _ax(ax)
     small = cv2.resize(image, (image.shape[1] // reduce, image.shape[0] // reduce), interpolation=cv2.INTER_AREA)
     ax.imshow(small, cmap="gray", vmin=0, vmax=255, extent=(-0.5, image.shape[1] - 0.5, image.shape[0] - 0.5, -0.5))
@@ -385,8 +385,6 @@ def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, title: st
 def plot_scene_side(scene, ax=None):
     """Fig 1a: side view (x–z) of the gripping scene: hub, the wire's cross-section, the gripper's jaws
     straddling it (above and below), the pad [mm]."""
-    from matplotlib.patches import Circle, Polygon, Rectangle
-
     ax = _ax(ax)
     g = scene.grip_point()
     r = scene.wire_diameter_mm / 2
@@ -461,7 +459,7 @@ def plot_volumetric_errors(errors: dict, ax=None):
 
 def plot_cross_validation_diff(diff, axes=None, *, width_in: float = 9.0):
     """mrcal-style cross-validation diffs over the field (``diff`` from
-    :func:`slmlab.study.cross_validation_diff`): ``|ΔX, ΔY|`` (top) and ``|ΔZ|`` (bottom) [µm] between two
+    :func:`slmlab.studies.workspace.cross_validation_diff`): ``|ΔX, ΔY|`` (top) and ``|ΔZ|`` (bottom) [µm] between two
     independent calibrations, one column per depth, one colour scale per row."""
     depths = sorted(diff["depth_mm"].unique())
     if axes is None:
@@ -488,7 +486,7 @@ def plot_cross_validation_diff(diff, axes=None, *, width_in: float = 9.0):
 
 def plot_accuracy_vs_positions(table, axes=None):
     """RMS displacement error over the noise floor against the number of calibration positions, per
-    coordinate (``table``: :func:`slmlab.study.accuracy_vs_positions` rows with a ``case`` column), log
+    coordinate (``table``: :func:`slmlab.studies.workspace.accuracy_vs_positions` rows with a ``case`` column), log
     scale."""
     if axes is None:
         _, axes = new_figure(1, 3, width_in=9.5, height_in=3.4, sharey=True)
@@ -571,8 +569,6 @@ def plot_pick_differences(diffs, axes=None, *, limit_px: float = 1.5):
 def plot_level_map(image, table, ax=None, *, title: str = "", reduce: int = 2):
     """One image of a two-level plate with its extracted dots, coloured by level (0 blue, 1 orange); the
     origin dot (``x_mm = y_mm = 0``) ringed. ``table``: ``w1, w2, level`` and optionally ``x_mm, y_mm``."""
-    import cv2
-
     ax = _ax(ax)
     small = cv2.resize(image, (image.shape[1] // reduce, image.shape[0] // reduce), interpolation=cv2.INTER_AREA)
     lo, hi = np.percentile(small, [1, 99.5])

@@ -8,15 +8,18 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab import study, thirdparty
-from slmlab.direct import LEGACY_FRAME, DirectModel, plate_xy
-from slmlab.paths import SHARED_DIR
-from slmlab.simulate import noise_floor, volume_session, zstack_frame, zstack_plate, zstack_session
-from slmlab.vision import displacements
+from slmlab.datasets import converters
+from slmlab.studies import workspace
+from slmlab.models.direct import LEGACY_FRAME, DirectModel
+from slmlab.models.frames import plate_xy
+from slmlab.outputs import SHARED_DIR
+from slmlab.virtual.simulate import noise_floor
+from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
+from slmlab.paper.chain import displacements
 
 
 def perfect_stage():
-    return study.perfect_stage(slmlab.preset("paper"))
+    return workspace.perfect_stage(slmlab.preset("paper"))
 
 
 def displacement_rms(val, positions_mm):
@@ -88,14 +91,14 @@ def test_reconstruct_adds_uncertainty_columns(tmp_path, volume):
 # ----------------------------------------------------------------------------- uncertainty, cross-validation
 def test_uncertainty_intervals_hold_what_they_promise_on_a_perfect_stage(volume):
     cal, val = volume
-    coverage = study.uncertainty_coverage(slmlab.calibrate(cal), val)
+    coverage = workspace.uncertainty_coverage(slmlab.calibrate(cal), val)
     assert all(abs(coverage[c] - 95) <= 2 for c in "XYZ"), coverage
 
 
 def test_independent_calibrations_differ_about_as_much_as_predicted():
     m = perfect_stage()
     a, b = (slmlab.calibrate(slmlab.simulate_set(m, slmlab.paper_test(2), seed=s)) for s in (11, 12))
-    d = study.cross_validation_diff(a, b, study.workspace_grid(m, slmlab.paper_test(2), n_xy=9))
+    d = workspace.cross_validation_diff(a, b, workspace.workspace_grid(m, slmlab.paper_test(2), n_xy=9))
     for c in "XYZ":
         ratio = np.sqrt(np.mean(d[f"d{c}_um"] ** 2)) / np.sqrt(np.mean(d[f"predicted_{c}_um"] ** 2))
         assert 0.4 < ratio < 2.5, (c, ratio)
@@ -116,7 +119,7 @@ def test_model_files_without_a_fitted_frame_still_load(tmp_path, volume):
 
 def test_thinning_positions_renumbers_each_sequence():
     cal = slmlab.simulate_set(perfect_stage(), slmlab.paper_test(5), seed=1)
-    thin = study.subsample_positions(cal, 3)
+    thin = workspace.subsample_positions(cal, 3)
     for s in "XYZ":
         n = cal.sequence(s)["position"].nunique()
         assert sorted(thin.sequence(s)["position"].unique()) == list(range(1, (n - 1) // 3 + 2))
@@ -138,10 +141,10 @@ def test_a_z_stack_alone_calibrates_to_the_noise_floor(zstack):
     assert set(cal.points["sequence"]) == {"Z"}
     model = slmlab.calibrate(cal)
     assert model.name == "auto" and model.calibration["selection"]["mode"] == "zstack"
-    t = study.volumetric_comparison({"z": model}, val, frame=frame).set_index("model").loc["z"]
+    t = workspace.volumetric_comparison({"z": model}, val, frame=frame).set_index("model").loc["z"]
     assert all(t[f"{c}_vs_floor"] <= 1.2 for c in "XYZ"), t
     # in the stage frame instead, the plate's mounting rotation shows as large X, Y errors: the frame matters
-    wrong = study.volumetric_comparison({"z": model}, val).set_index("model").loc["z"]
+    wrong = workspace.volumetric_comparison({"z": model}, val).set_index("model").loc["z"]
     assert wrong["X_vs_floor"] > 5
 
 
@@ -158,19 +161,19 @@ def test_the_disparity_direction_is_found_from_the_data(volume):
 
 
 # ----------------------------------------------------------------------------- the real Z stack
-PIV = SHARED_DIR / "realdata" / thirdparty.PIV_CHALLENGE_DIR
+PIV = SHARED_DIR / "realdata" / converters.PIV_CHALLENGE_DIR
 
 
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_path):
-    cal = thirdparty.pivchallenge_set(PIV)
+    cal = converters.pivchallenge_set(PIV)
     csv = pd.read_csv(PIV / "stereo_common_points.csv")
     assert len(cal.points) == len(csv) == 112
     assert sorted(cal.points["position"].unique()) == list(range(1, 8))
     back = slmlab.read_set(slmlab.write_set(tmp_path / "piv", cal))
     xy = plate_xy(back.points["row"], back.points["col"], back.plate("Z")) + back.points[["stage_x_mm", "stage_y_mm"]].to_numpy()
     # UVMAT counts pixels from 1 (MATLAB), slmlab from 0
-    origin = thirdparty.UVMAT_PIXEL_ORIGIN
+    origin = converters.UVMAT_PIXEL_ORIGIN
     merged = pd.DataFrame({"X_mm": xy[:, 0], "Y_mm": xy[:, 1], "Z_mm": back.points["stage_z_mm"],
                            "u_cam1_px": back.points["wl1"] + origin, "v_cam3_px": back.points["wr2"] + origin})
     joined = merged.round(6).merge(csv.round(6), on=["X_mm", "Y_mm", "Z_mm", "u_cam1_px", "v_cam3_px"])
@@ -179,10 +182,10 @@ def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_pat
 
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
-    cal = thirdparty.pivchallenge_set(PIV)
+    cal = converters.pivchallenge_set(PIV)
     direct = slmlab.calibrate(cal, "direct")
     assert direct.options["mode"] == "zstack" and abs(direct.frame["direction"][1]) > 0.99  # oblique camera: rows
-    lopo = study.leave_one_plane_out(cal, {"default": {}, "linear": {"model": "direct", "degree": 1}})
+    lopo = workspace.leave_one_plane_out(cal, {"default": {}, "linear": {"model": "direct", "degree": 1}})
     rms = lopo.groupby("model")[["EX_mm", "EY_mm", "EZ_mm"]].apply(lambda g: np.sqrt((g ** 2).mean()))
     assert (rms.loc["linear"] > 3 * rms.loc["default"]).all(), rms   # the initial linear model is not enough
     d = lopo[lopo["model"] == "default"]
@@ -192,14 +195,14 @@ def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
 
 
 def test_the_grid_plate_measures_the_stages_scale_error():
-    m = study.perfect_stage(slmlab.preset("paper"), keep=("scale_error",))
+    m = workspace.perfect_stage(slmlab.preset("paper"), keep=("scale_error",))
     cal = slmlab.simulate_set(m, slmlab.paper_test(1), seed=1)
     val = slmlab.simulate_set(m, volume_session(20, seed=5), seed=7)
     default = slmlab.calibrate(cal)
     measured = default.calibration["stage_xy_scale_error_vs_plate"]
     assert abs(measured[0] - m.stage.scale_error[0]) < 2e-5, measured
     plate = slmlab.calibrate(cal, length_reference="plate")
-    t = study.volumetric_comparison({"stage": default, "plate": plate}, val).set_index("model")
+    t = workspace.volumetric_comparison({"stage": default, "plate": plate}, val).set_index("model")
     assert t.loc["plate", "X_vs_floor"] < 1.2 < t.loc["stage", "X_vs_floor"], t
 
 
@@ -221,8 +224,8 @@ def test_calibrate_takes_model_options_on_the_command_line(tmp_path, volume):
 
 def test_the_commanded_frame_limit_is_the_floor_on_a_perfect_stage_and_above_it_otherwise(volume):
     _, val = volume
-    perfect = study.commanded_frame_limit(perfect_stage(), slmlab.paper_test(1), val, repeats=3)
+    perfect = workspace.commanded_frame_limit(perfect_stage(), slmlab.paper_test(1), val, repeats=3)
     assert np.allclose(perfect["attainable_vs_floor"], 1.0, atol=1e-6)
-    noisy = study.perfect_stage(slmlab.preset("paper"), keep=("positioning_noise_um",))
-    limit = study.commanded_frame_limit(noisy, slmlab.paper_test(1), val, repeats=3)
+    noisy = workspace.perfect_stage(slmlab.preset("paper"), keep=("positioning_noise_um",))
+    limit = workspace.commanded_frame_limit(noisy, slmlab.paper_test(1), val, repeats=3)
     assert (limit["attainable_vs_floor"][:2] > 1.1).all(), limit

@@ -10,8 +10,10 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab.extract import extract_image, extraction_errors, extraction_summary, read_image
-from slmlab.render import render_plate
+from slmlab.images.extract import extract_image
+from slmlab.studies.extraction import extraction_errors, extraction_summary
+from slmlab.images.dots import read_image
+from slmlab.virtual.render import render_plate
 
 from conftest import SHARED
 
@@ -37,7 +39,7 @@ def test_extraction_meets_the_accuracy_targets(rendered_set):
 
 def test_rendered_images_are_byte_identical_for_a_seed(rendered_set, tmp_path):
     cal = slmlab.simulate_set(slmlab.preset("paper"), slmlab.paper_test(5), seed=4)
-    from slmlab.render import render_set
+    from slmlab.virtual.render import render_set
 
     render_set(cal, tmp_path, sequences=["Z"], progress=False)
     for f in sorted((tmp_path / "images").glob("Z_00[12]_*.png")):

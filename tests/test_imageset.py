@@ -12,15 +12,19 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab import thirdparty
-from slmlab.extract import extract_image, read_image
-from slmlab.imageset import extract_set
-from slmlab.render import render_plate
+from slmlab.datasets import converters
+from slmlab.studies import workspace
+from slmlab.images.extract import extract_image
+from slmlab.images.dots import read_image
+from slmlab.images.imageset import extract_set
+from slmlab.virtual.render import board_orientation, render_board_set, render_plate
+from slmlab.virtual.sessions import Session, zstack_frame
+from slmlab.virtual.simulate import stage_origin
 
 from conftest import SHARED
 
 REAL = SHARED / "realdata"
-PIV = REAL / thirdparty.PIV_CHALLENGE_DIR
+PIV = REAL / converters.PIV_CHALLENGE_DIR
 
 
 def cli(*args):
@@ -122,14 +126,14 @@ def test_bad_images_are_one_line_errors_and_nothing_is_written(case, tmp_path, p
 def case_e(tmp_path_factory):
     if not PIV.exists():
         pytest.skip("../shared/realdata/ (PIV Challenge case E) is not present")
-    d = thirdparty.pivchallenge_image_set(PIV, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
+    d = converters.pivchallenge_image_set(PIV, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
     points, notes = extract_set(d, progress=False)
     return d, points, notes
 
 
 def test_case_e_images_meet_the_extraction_targets(case_e):
     _, pts, notes = case_e
-    picks = thirdparty.pivchallenge_picks(PIV, common=False)
+    picks = converters.pivchallenge_picks(PIV, common=False)
     found, diffs, total = 0, [], 0
     for side, u, v in (("l", "u1_px", "v1_px"), ("r", "u2_px", "v2_px")):
         p = picks.dropna(subset=[u]).merge(pts.dropna(subset=[f"w{side}1"]), how="left",
@@ -184,9 +188,9 @@ def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case
 
 
 # ----------------------------------------------------------------------------------- other real samples
-@pytest.mark.skipif(not (REAL / thirdparty.DICE_DIR).exists(), reason="DICe images not present")
+@pytest.mark.skipif(not (REAL / converters.DICE_DIR).exists(), reason="DICe images not present")
 def test_dice_dot_target_pairs_through_extract(tmp_path):
-    pts, notes = extract_set(thirdparty.dice_image_set(REAL / thirdparty.DICE_DIR, tmp_path / "dice"), progress=False)
+    pts, notes = extract_set(converters.dice_image_set(REAL / converters.DICE_DIR, tmp_path / "dice"), progress=False)
     assert pts["position"].nunique() == 14 and any("donut" in n for n in notes)
     for _, g in pts.dropna(subset=["wl1", "wr1"]).groupby("position"):
         assert len(g) >= 60
@@ -194,19 +198,15 @@ def test_dice_dot_target_pairs_through_extract(tmp_path):
         assert inl.mean() >= 0.95   # the same [row, col] in both views is the same dot
 
 
-@pytest.mark.skipif(not (REAL / thirdparty.CHESSBOARD_DIR).exists(), reason="OpenCV chessboard images not present")
+@pytest.mark.skipif(not (REAL / converters.CHESSBOARD_DIR).exists(), reason="OpenCV chessboard images not present")
 def test_opencv_chessboard_pairs_through_extract(tmp_path):
-    pts, _ = extract_set(thirdparty.chessboard_image_set(REAL / thirdparty.CHESSBOARD_DIR, tmp_path / "c"), progress=False)
+    pts, _ = extract_set(converters.chessboard_image_set(REAL / converters.CHESSBOARD_DIR, tmp_path / "c"), progress=False)
     counts = pts.dropna(subset=["wl1", "wr1"]).groupby("position").size()
     assert len(counts) == 13 and (counts == 54).all()
 
 
 def test_a_virtual_charuco_stack_is_found_numbered_and_calibrates_to_the_floor(tmp_path):
-    from slmlab import study
-    from slmlab.render import board_orientation, render_board_set
-    from slmlab.simulate import Session, stage_origin, zstack_frame
-
-    m = study.perfect_stage(slmlab.preset("paper"))
+    m = workspace.perfect_stage(slmlab.preset("paper"))
     board = {"squares": [16, 12], "square_mm": 0.3, "marker_mm": 0.22, "dictionary": "DICT_6X6_250", "legacy": True}
     sets = {}
     for name, z, seed in (("cal", np.linspace(-0.6, 0.6, 7), 1), ("val", [-0.45, 0.15, 0.45], 2)):

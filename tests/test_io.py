@@ -161,7 +161,7 @@ def test_tables_keep_the_digits_their_numbers_carry(tmp_path, monkeypatch):
     import numpy as np
     import pandas as pd
 
-    from slmlab.paths import savetable, table_digits
+    from slmlab.outputs import savetable, table_digits
 
     df = pd.DataFrame({"name": ["a", "b", "c"], "ours": [0.123456789, -1.5e-12, 12345.678],
                        "paper": [0.1234567, 0.0, 12345.678], "n": [1, 2, 3], "tiny": [3.2e-7, 1.2e-7, np.nan]})

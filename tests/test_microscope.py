@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import slmlab
-from slmlab.microscope import View
+from slmlab.virtual.microscope import View
 
 
 def undistorted(m: slmlab.Microscope) -> slmlab.Microscope:

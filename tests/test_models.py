@@ -55,7 +55,7 @@ class _Scale(slmlab.Model):
 
 
 def test_model_file_round_trip_and_version_check(tmp_path, paper_set, monkeypatch):
-    monkeypatch.setitem(models._REGISTRY, _Scale.name, _Scale)
+    monkeypatch.setitem(models.base._REGISTRY, _Scale.name, _Scale)
     m = slmlab.calibrate(paper_set, "test-scale")
     assert m.calibration["positions"] == {"grid": 1, "X": 42, "Y": 30, "Z": 32}
     path = m.save(tmp_path / "m.json")

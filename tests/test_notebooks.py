@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from slmlab.notebooks import run_notebook
+from slmlab.run_notebooks import run_notebook
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
 

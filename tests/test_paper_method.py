@@ -10,11 +10,11 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab.alignment import estimate_alignment
-from slmlab.distortion import estimate_distortion, quality
-from slmlab.evaluation import RESIDUAL_INTERVALS_MM, s_coefficients, requirement
-from slmlab.microscope import CentroidNoise, View
-from slmlab.vision import fit_paper
+from slmlab.paper.alignment import estimate_alignment
+from slmlab.paper.distortion import estimate_distortion, quality
+from slmlab.paper.evaluation import RESIDUAL_INTERVALS_MM, s_coefficients, requirement
+from slmlab.virtual.microscope import CentroidNoise, View
+from slmlab.paper.chain import fit_paper
 
 SIGMA = 0.02
 

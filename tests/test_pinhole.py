@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 import slmlab
-from slmlab.pinhole import VARIANTS, calibrate_stereo, chessboard_views
-from slmlab.simulate import tilted_session
+from slmlab.models.pinhole import VARIANTS, calibrate_stereo
+from slmlab.images.boards import chessboard_views
+from slmlab.virtual.sessions import tilted_session
 
 from conftest import SHARED
 
@@ -78,7 +79,7 @@ def test_real_chessboard_stereo_rms_is_well_under_a_pixel():
 
 @pytest.mark.skipif(not DICE.is_dir(), reason="real DICe dot-target images not present in ../shared/realdata")
 def test_real_dot_target_stereo_rms_is_well_under_a_pixel():
-    from slmlab.extract import extract_stereo_pairs
+    from slmlab.images.extract import extract_stereo_pairs
 
     lefts = sorted(DICE.glob("*_0.jpeg"))
     counts = extract_stereo_pairs([(p, p.with_name(p.name.replace("_0.", "_1."))) for p in lefts], 8, 10)

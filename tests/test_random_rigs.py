@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 
 import slmlab
 from slmlab import cli
-from slmlab.microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
-from slmlab.simulate import Session
+from slmlab.virtual.microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View
+from slmlab.virtual.sessions import Session
 
 MODELS = ("auto", "direct", "soloff", "quadratic", "paper-m0", "paper-m1", "paper-m2")
 
@@ -207,7 +207,7 @@ IMAGE_DAMAGE = ("none", "none", "none", "blank image", "truncated image", "other
 def test_extract_succeeds_or_says_what_to_do(m, data, damage, tiff, bright, seed, tmp_path_factory):
     import cv2
 
-    from slmlab.render import render_set
+    from slmlab.virtual.render import render_set
 
     small = replace(m, optics=replace(m.optics, image_size_px=tuple(min(v, 900) for v in m.optics.image_size_px)))
     session = Session(step_mm=data.draw(sessions(small)).step_mm, positions=tuple(data.draw(st.integers(0, 3))

@@ -9,18 +9,20 @@ import pandas as pd
 import pytest
 
 import slmlab
-from slmlab import study, thirdparty
-from slmlab.direct import plate_xy
-from slmlab.simulate import stepped_target, target_set, volume_session, zstack_frame, zstack_plate, zstack_session
+from slmlab.datasets import converters
+from slmlab.studies import workspace
+from slmlab.models.frames import plate_xy
+from slmlab.virtual.simulate import stepped_target, target_set
+from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
 
 from conftest import SHARED
 
-PIV = SHARED / "realdata" / thirdparty.PIV_CHALLENGE_DIR
+PIV = SHARED / "realdata" / converters.PIV_CHALLENGE_DIR
 
 
 @pytest.fixture(scope="module")
 def perfect():
-    return study.perfect_stage(slmlab.preset("paper"))
+    return workspace.perfect_stage(slmlab.preset("paper"))
 
 
 @pytest.fixture(scope="module")
@@ -35,14 +37,14 @@ def zstack(perfect):
 
 
 def floor_ratio(model, val, frame=None):
-    t = study.volumetric_comparison({"m": model}, val, frame=frame).set_index("model").loc["m"]
+    t = workspace.volumetric_comparison({"m": model}, val, frame=frame).set_index("model").loc["m"]
     return np.array([t[f"{c}_vs_floor"] for c in "XYZ"])
 
 
 def test_soloff_inverts_its_own_projection(zstack):
     cal, _ = zstack
     model = slmlab.calibrate(cal, "soloff", degree=[3, 2])
-    pts, world, _ = slmlab.direct.world_positions(cal)
+    pts, world, _ = slmlab.models.frames.world_positions(cal)
     x = world[::37] + np.random.default_rng(0).normal(0, 0.05, (len(world[::37]), 3))
     assert np.abs(model.reconstruct(model.project(x)) - x).max() < 1e-6   # mm, from the regression start
 
@@ -51,7 +53,7 @@ def test_soloff_calibrates_a_z_stack_to_the_floor_and_its_intervals_hold(zstack,
     cal, frame = zstack
     model = slmlab.calibrate(cal, "soloff")
     assert (floor_ratio(model, volume, frame) <= 1.2).all()
-    cov = study.uncertainty_coverage(model, volume, frame=frame)
+    cov = workspace.uncertainty_coverage(model, volume, frame=frame)
     assert all(abs(cov[c] - 95) <= 4 for c in "XYZ"), cov
 
 
@@ -96,7 +98,7 @@ def test_a_two_level_plate_in_one_pose_calibrates_what_two_depths_allow(perfect,
 @pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
 def test_on_the_real_stereo_piv_rig_the_default_is_no_worse_than_a_plain_quadratic():
     """Calibrated on planes 1, 3, 5, 7 of the case E picks, checked on 2, 4, 6 (errors after one offset)."""
-    picks = thirdparty.pivchallenge_set(PIV)
+    picks = converters.pivchallenge_set(PIV)
     pts = picks.points
     cal = slmlab.CalibrationSet(pts[pts["position"] % 2 == 1].copy(), picks.meta)
     chk = pts[pts["position"] % 2 == 0]

@@ -195,7 +195,7 @@ def test_random_corruptions_give_success_or_the_documented_error(small_set, tmp_
 # ------------------------------------------------------------------------------------------ determinism
 @pytest.fixture(scope="module")
 def zstack_set(tmp_path_factory):
-    from slmlab.simulate import zstack_plate, zstack_session
+    from slmlab.virtual.sessions import zstack_plate, zstack_session
 
     d = tmp_path_factory.mktemp("z") / "set"
     m = slmlab.preset("paper")
@@ -218,7 +218,7 @@ def test_every_model_file_is_byte_identical_whatever_the_threads(model, tmp_path
 
 
 def test_a_notebook_writes_identical_figures_twice(tmp_path):
-    from slmlab.notebooks import run_notebook
+    from slmlab.run_notebooks import run_notebook
 
     nb = Path(__file__).resolve().parent.parent / "notebooks" / "01_system_and_virtual_microscope.ipynb"
     for k in ("a", "b"):
@@ -237,8 +237,8 @@ OTHER_CPU = {"NPY_DISABLE_CPU_FEATURES": "AVX512_SPR AVX512_ICL X86_V4", "OPENBL
 CPU_PROBE = """
 import json, numpy as np, slmlab
 from slmlab import gripping
-from slmlab.alignment import estimate_alignment
-from slmlab.distortion import estimate_distortion
+from slmlab.paper.alignment import estimate_alignment
+from slmlab.paper.distortion import estimate_distortion
 m = slmlab.preset("paper")
 cal = slmlab.simulate_set(m, slmlab.paper_test(1), seed=1)
 dist = estimate_distortion(cal.sequence("grid"))
@@ -320,7 +320,7 @@ def test_a_wrong_stage_file_or_an_undetermined_axis_is_named(case, work, tmp_pat
 
 
 def test_a_known_target_without_depth_names_the_axis(tmp_path):
-    from slmlab.simulate import stepped_target, target_set
+    from slmlab.virtual.simulate import stepped_target, target_set
 
     flat = target_set(slmlab.preset("paper"), stepped_target(steps_mm=(0.0,)), [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
     d = slmlab.write_set(tmp_path / "flat", flat)

@@ -1,4 +1,4 @@
-"""The model registry, the :class:`Model` base class and model files (DATA_FORMAT.md).
+"""The model registry, the :class:`Model` base class and model files.
 
 Every vision model (the paper's Models 0–2, the pinhole baseline, the project's own) is a subclass of
 :class:`Model` registered under a name. ``calibrate`` fits one on a calibration set, ``reconstruct`` maps
@@ -9,15 +9,20 @@ the calibration set's summary. Model files are plain JSON: loading one executes 
 
 from __future__ import annotations
 
+import ctypes
+import glob
 import json
 import os
 from pathlib import Path
 from typing import ClassVar
 
+import cv2
 import numpy as np
+import scipy
 
-from .errors import SlmlabError
-from .io import CalibrationSet, atomic_write_text, json_text
+from ..checks import check_stage_file
+from ..errors import SlmlabError
+from ..io import CalibrationSet, atomic_write_text, json_text
 
 __all__ = ["MODEL_FORMAT", "Model", "register", "available_models", "default_model_name", "get_model_class", "one_thread",
            "calibrate", "load_model"]
@@ -68,7 +73,7 @@ class Model:
 
     def fixed_options(self) -> dict:
         """Options of :meth:`fit` that reproduce this model's data-chosen settings (its degrees, ...), so that
-        held-out fits compare models as chosen on the whole set (:mod:`slmlab.selection`)."""
+        held-out fits compare models as chosen on the whole set (:mod:`slmlab.models.auto`)."""
         return {}
 
     # ---------------------------------------------------------------- files
@@ -107,18 +112,14 @@ def available_models() -> dict[str, type[Model]]:
 
 def default_model_name() -> str:
     """Name of the most accurate registered model (what ``calibrate`` uses without ``--model``)."""
-    models = available_models()
-    if not models:
-        raise SlmlabError("no vision model is implemented yet: the paper's models (§3–§5) arrive in a later "
-                          "version of slmlab; only simulate works for now")
-    return next(iter(models))
+    return next(iter(available_models()))
 
 
 def get_model_class(name: str) -> type[Model]:
     models = available_models()
     if name not in models:
-        known = ", ".join(models) if models else "none yet"
-        raise SlmlabError(f"unknown model {name!r}; the models are: {known} (see 'python -m slmlab models')")
+        raise SlmlabError(f"unknown model {name!r}; the models are: {', '.join(models)} "
+                          "(see 'python -m slmlab models')")
     return models[name]
 
 
@@ -133,12 +134,6 @@ class one_thread:
     @classmethod
     def _openblas(cls):
         if cls._blas is None:
-            import ctypes
-            import glob
-
-            import cv2
-            import scipy
-
             found = []
             paths = []
             for package in (np, scipy, cv2):  # NumPy's and SciPy's OpenBLAS, and the one OpenCV's LAPACK uses
@@ -157,8 +152,6 @@ class one_thread:
         return cls._blas
 
     def __enter__(self):
-        import cv2
-
         self.cv = cv2.getNumThreads()
         cv2.setNumThreads(1)
         self.blas = [(get, put, get()) for get, put in self._openblas()]
@@ -167,8 +160,6 @@ class one_thread:
         return self
 
     def __exit__(self, *exc):
-        import cv2
-
         cv2.setNumThreads(self.cv)
         for _, put, n in self.blas:
             put(n)
@@ -186,8 +177,6 @@ def calibrate(cal: CalibrationSet, model: str | None = None, **options) -> Model
     **options
         model-specific options (e.g. the scale estimator of the paper's models).
     """
-    from .checks import check_stage_file
-
     cls = get_model_class(model or default_model_name())
     check_stage_file(cal)
     with one_thread():

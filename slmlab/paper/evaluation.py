@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .errors import SlmlabError
-from .io import CalibrationSet
-from .vision import displacements
+from ..errors import SlmlabError
+from ..io import CalibrationSet
+from .chain import displacements
 
 __all__ = ["RESIDUAL_INTERVALS_MM", "ELEMENTS", "residuals", "s_coefficients", "requirement", "element_summary",
            "Evaluation", "evaluate"]

@@ -1,16 +1,15 @@
-"""Where things live, notebook size, and writing figures and tables by their paper name.
+"""What a notebook writes, and at which size: figures and tables by their paper name.
 
-Notebooks never build paths themselves: the reference numbers come from :func:`paper_reference`, figures and
-tables go through :func:`savefig` and :func:`savetable` (in the spirit of ThinkBayes2's ``savefig``), which
+Notebooks never build paths themselves: figures and tables go through :func:`savefig` and :func:`savetable`
+(in the spirit of ThinkBayes2's ``savefig``), which
 write into ``$SLMLAB_FIGURES`` when it is set (``make reproduce`` sets it to ``figures/``; ``make test``
 to a temporary folder) and write nothing otherwise, so an interactive session never edits ``figures/``.
 """
 
 from __future__ import annotations
 
-import json
 import os
-from functools import lru_cache
+from io import BytesIO
 from pathlib import Path
 
 import numpy as np
@@ -18,11 +17,10 @@ import pandas as pd
 
 from .io import atomic_write_bytes, atomic_write_text
 
-__all__ = ["REPO_ROOT", "DATA_DIR", "SHARED_DIR", "figures_dir", "notebook_size", "paper_reference", "savefig",
-           "savetable", "markdown_table", "table_digits", "TABLE_DIGITS"]
+__all__ = ["REPO_ROOT", "SHARED_DIR", "figures_dir", "notebook_size", "savefig", "savetable", "markdown_table",
+           "table_digits", "TABLE_DIGITS"]
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-DATA_DIR = REPO_ROOT / "data"
 #: ``../shared`` beside the repository (real data, when present)
 SHARED_DIR = Path(os.environ.get("SLMLAB_SHARED", REPO_ROOT.parent / "shared"))
 
@@ -43,31 +41,12 @@ def notebook_size() -> str:
     return "small" if size == "small" else "full"
 
 
-@lru_cache(maxsize=1)
-def _reference() -> dict:
-    return json.loads((DATA_DIR / "paper_reference.json").read_text(encoding="utf-8"))
-
-
-def paper_reference(*keys: str):
-    """Numbers the paper reports (``data/paper_reference.json``), optionally a nested entry.
-
-    >>> paper_reference("table4", "thetaX_deg", "mean")
-    3.0347
-    """
-    d = _reference()
-    for k in keys:
-        d = d[k]
-    return d
-
-
 def savefig(fig, name: str, *, dpi: int = 110) -> Path | None:
     """Write ``fig`` as ``{name}.png`` into :func:`figures_dir` (if set), byte-stable for the same content:
     Agg renderer, no software version or date in the metadata."""
     out = figures_dir()
     if out is None:
         return None
-    from io import BytesIO
-
     buf = BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
     path = out / f"{name}.png"

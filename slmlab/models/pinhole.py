@@ -28,13 +28,14 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from .errors import SlmlabError
-from .io import CalibrationSet
-from .models import Model, register
-from .vision import displacements
+from ..errors import SlmlabError
+from ..io import CalibrationSet
+from ..paper.chain import displacements
+from .base import Model, one_thread, register
+from .frames import check_axes
 
 __all__ = ["VARIANTS", "STAGE_MAPS", "StereoPinhole", "plate_views", "calibrate_stereo", "fit_stage_map",
-           "PinholeModel", "chessboard_views"]
+           "PinholeModel", "views_table"]
 
 VARIANTS = {
     "standard": 0,
@@ -189,8 +190,6 @@ def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affin
     if not dps:
         raise SlmlabError("the pinhole model needs X, Y or Z sequences (stage moves) to map the cameras to the stage")
     dp, da = np.vstack(dps), np.vstack(das)
-    from .checks import check_axes
-
     check_axes(da, "moves", cal.path)
     if kind == "affine":
         a = np.linalg.lstsq(dp, da, rcond=None)[0].T
@@ -242,8 +241,6 @@ class PinholeModel(Model):
         """``variant`` ``None`` chooses by held-back positions; ``views_from`` the sequences used as target
         views (default: ``T`` if the set has tilted poses, else X, Y, Z); ``f_guess_px`` defaults to
         ``L / pixel`` of a CMO microscope with a 300 mm perspective distance and 3 µm pixels."""
-        from .models import one_thread
-
         with one_thread():  # (calibrate pins threads too; this covers a direct call of fit)
             return cls._fit(cal, variant=variant, stage_map=stage_map, views_from=views_from, fix_focal=fix_focal,
                             f_guess_px=f_guess_px)
@@ -285,29 +282,6 @@ class PinholeModel(Model):
     def from_parameters(cls, parameters, calibration, options):
         return cls(StereoPinhole.from_dict(parameters), parameters["A"], parameters["t"], calibration=calibration,
                    options=options)
-
-
-def chessboard_views(pairs: list[tuple[str, str]], pattern=(9, 6), square: float = 1.0) -> tuple[list[dict], tuple]:
-    """Planar views from stereo chessboard images (OpenCV's sample): inner corners by
-    ``cv2.findChessboardCorners`` refined by ``cv2.cornerSubPix``; pairs where either view fails are skipped."""
-    from .extract import read_image
-
-    objp = np.zeros((pattern[0] * pattern[1], 3), np.float32)
-    objp[:, :2] = np.mgrid[0:pattern[0], 0:pattern[1]].T.reshape(-1, 2) * square
-    views, size = [], None
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
-    for left, right in pairs:
-        pts = {}
-        for side, path in (("l", left), ("r", right)):
-            img = read_image(path)
-            size = (img.shape[1], img.shape[0])
-            ok, c = cv2.findChessboardCorners(img, pattern)
-            if not ok:
-                break
-            pts[side] = cv2.cornerSubPix(img, c, (11, 11), (-1, -1), crit).reshape(-1, 2)
-        if len(pts) == 2:
-            views.append({"sequence": "chessboard", "position": len(views) + 1, "obj": objp, **pts})
-    return views, size
 
 
 def views_table(views: list[dict]) -> pd.DataFrame:

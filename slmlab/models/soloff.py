@@ -29,11 +29,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SlmlabError
-from .io import IMAGE_COLUMNS, CalibrationSet
-from .models import Model, register
+from ..errors import SlmlabError
+from ..io import IMAGE_COLUMNS, CalibrationSet
+from .base import Model, register
+from .folds import row_folds
+from .frames import dot_labels, world_positions
+from .reference import quadratic_features
 
-__all__ = ["terms", "SoloffModel", "QuadraticReference", "fit_soloff", "DEGREES"]
+__all__ = ["terms", "SoloffModel", "fit_soloff", "DEGREES"]
 
 #: candidate (degree in X and Y, degree in Z); the first is Soloff's
 DEGREES = ((3, 2), (3, 1), (2, 2), (2, 1), (4, 2))
@@ -63,14 +66,6 @@ def _design(xn: np.ndarray, exps) -> np.ndarray:
     deg = max(max(e) for e in exps)
     p = _powers(xn, deg)
     return np.stack([p[0, i] * p[1, j] * p[2, k] for i, j, k in exps], axis=1)
-
-
-def _quadratic(w: np.ndarray, centre, scale) -> np.ndarray:
-    """Quadratic monomials (with the constant) of normalised image coordinates ``(n, 4)``: 15 columns."""
-    u = (np.asarray(w, float) - centre) / scale
-    cols = [np.ones(len(u))] + [u[:, k] for k in range(4)]
-    cols += [u[:, a] * u[:, b] for a in range(4) for b in range(a, 4)]
-    return np.column_stack(cols)
 
 
 def fit_soloff(world: np.ndarray, w: np.ndarray, xy_degree: int = 3, z_degree: int = 2, dots=None) -> dict:
@@ -110,7 +105,7 @@ def fit_soloff(world: np.ndarray, w: np.ndarray, xy_degree: int = 3, z_degree: i
         inv.append(gi)
     both = np.isfinite(w).all(axis=1)
     wc, ws = w[both].mean(axis=0), np.maximum(w[both].std(axis=0), 1e-9)
-    start, *_ = np.linalg.lstsq(_quadratic(w[both], wc, ws), world[both], rcond=None)
+    start, *_ = np.linalg.lstsq(quadratic_features(w[both], wc, ws), world[both], rcond=None)
     sigma = np.maximum(sigma, 1e-6)
     noise = _noise_poly(a @ coef - w, (world[:, 2] - centre[2]) / scale[2], dots, sigma, len(exps))
     return {"centre_mm": centre, "scale_mm": scale, "exponents": exps, "coef": coef, "sigma_px": sigma,
@@ -179,9 +174,7 @@ class SoloffModel(Model):
     def fit(cls, cal: CalibrationSet, *, degree=None, mode: str = "auto", **_):
         """Fit on a set whose dots' world positions are known (a Z stack of a plate of known pitch, or a known
         target). ``degree``: ``[xy, z]`` (default: chosen on held-out positions among :data:`DEGREES`);
-        ``mode``: as :func:`slmlab.direct.world_positions`."""
-        from .direct import world_positions
-
+        ``mode``: as :func:`slmlab.models.frames.world_positions`."""
         pts, world, mode = world_positions(cal, mode)
         if mode == "moves":
             raise SlmlabError("the soloff model needs each dot's world position: a Z stack of a plate with rows, "
@@ -207,7 +200,7 @@ class SoloffModel(Model):
             if best[1] >= n_z:
                 raise SlmlabError(f"a degree of {best[1]} in Z needs more than {best[1]} distinct depths; the set has "
                                   f"{n_z}", cal.path)
-        p = fit_soloff(world, w, *best, dots=_dot_labels(pts))
+        p = fit_soloff(world, w, *best, dots=dot_labels(pts))
         model = cls(p, options={"degree": list(best), "degree_chosen_by": "held-out positions" if degree is None
                                 else "user", "mode": mode},
                     calibration={"held_out_rms_mm_by_degree": {f"{a},{b}": [float(v) for v in e]
@@ -268,7 +261,7 @@ class SoloffModel(Model):
         regression start, until the largest step is below ``tolerance`` (normally two steps). The error left
         after a step is of the order of the step squared: below 1e-8 of the calibrated half-range."""
         s = self.start
-        x = np.ascontiguousarray(((_quadratic(w, s["centre_px"], s["scale_px"]) @ s["coef"] - self.centre)
+        x = np.ascontiguousarray(((quadratic_features(w, s["centre_px"], s["scale_px"]) @ s["coef"] - self.centre)
                                   / self.scale).T)
         wT = np.ascontiguousarray(w.T)
         for _ in range(max_iterations):
@@ -323,13 +316,6 @@ class SoloffModel(Model):
         return cls(parameters, calibration=calibration, options=options)
 
 
-def _dot_labels(pts) -> np.ndarray:
-    """One label per row: its dot (``row, col``) on its sequence's plate."""
-    from .linefit import point_keys
-
-    return point_keys(pts["row"], pts["col"]).astype(str) + ":" + pts["sequence"].astype(str).to_numpy()
-
-
 def _solve3(j: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Gauss–Newton steps ``(3, n)``: ``(JᵀJ)⁻¹ Jᵀr`` per point, from ``J (3, 4, n)`` and ``r (4, n)``, with the
     symmetric 3 × 3 normal matrices inverted in closed form (cofactors), elementwise over points."""
@@ -350,16 +336,14 @@ def _solve3(j: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def _held_out(pts, world, w, options) -> dict:
     """Held-out RMS [mm] per coordinate of each degree option, on crossed folds of planes and dots
-    (:func:`slmlab.selection.row_folds`); errors net of one common offset."""
-    from .selection import row_folds
-
+    (:func:`slmlab.models.folds.row_folds`); errors net of one common offset."""
     folds = row_folds(pts, "target")
     out = {}
     for d in options:
         errs = []
         for train, held in folds:
             try:
-                p = fit_soloff(world[train], w[train], *d, dots=_dot_labels(pts)[train])
+                p = fit_soloff(world[train], w[train], *d, dots=dot_labels(pts)[train])
             except SlmlabError:
                 errs = None
                 break
@@ -376,43 +360,3 @@ def _held_out(pts, world, w, options) -> dict:
     return out
 
 
-@register
-class QuadraticReference(Model):
-    """The plain reference of issue-style comparisons: world coordinates as one least-squares quadratic in
-    the four image coordinates (15 terms each), fitted on dots whose world positions are known."""
-
-    name = "quadratic"
-    summary = ("reference: one least-squares quadratic from the four image coordinates to each world "
-               "coordinate (needs known world positions: a Z stack or a known target)")
-    accuracy_rank = 60
-    units = {"centre_px": "px", "scale_px": "px", "coef": "mm per normalised quadratic monomial"}
-
-    def __init__(self, centre_px, scale_px, coef, **kw):
-        super().__init__(**kw)
-        self.centre_px, self.scale_px = np.asarray(centre_px, float), np.asarray(scale_px, float)
-        self.coef = np.asarray(coef, float)
-
-    @classmethod
-    def fit(cls, cal: CalibrationSet, *, mode: str = "auto", **_):
-        from .direct import world_positions
-
-        pts, world, mode = world_positions(cal, mode)
-        if mode == "moves":
-            raise SlmlabError("the quadratic reference needs each dot's world position (a Z stack or a known "
-                              "target)", cal.path)
-        w = pts[IMAGE_COLUMNS].to_numpy(float)
-        if len(w) <= 15:
-            raise SlmlabError(f"{len(w)} dots seen in both views: the quadratic reference needs more than 15", cal.path)
-        centre, scale = w.mean(axis=0), np.maximum(w.std(axis=0), 1e-9)
-        coef, *_ = np.linalg.lstsq(_quadratic(w, centre, scale), world, rcond=None)
-        return cls(centre, scale, coef, options={"mode": mode})
-
-    def reconstruct(self, w: np.ndarray) -> np.ndarray:
-        return _quadratic(np.atleast_2d(np.asarray(w, float)), self.centre_px, self.scale_px) @ self.coef
-
-    def parameters_dict(self) -> dict:
-        return {"centre_px": self.centre_px.tolist(), "scale_px": self.scale_px.tolist(), "coef": self.coef.tolist()}
-
-    @classmethod
-    def from_parameters(cls, p, calibration, options):
-        return cls(p["centre_px"], p["scale_px"], p["coef"], calibration=calibration, options=options)

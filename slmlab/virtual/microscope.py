@@ -1,4 +1,4 @@
-"""The virtual CMO stereo light microscope: optics, cameras and stage (METHOD.md §7).
+"""The virtual CMO stereo light microscope: optics, cameras and stage (paper §2; the physics of a CMO).
 
 A physical model, not the paper's equations run backwards. Each optical sub-system sees the object
 through an off-axis zone of the common main objective (CMO):
@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
+import pandas as pd
 
 __all__ = [
     "View",
@@ -46,6 +47,9 @@ __all__ = [
     "Imaging",
     "Microscope",
     "rotation_z",
+    "from_dict",
+    "describe",
+    "depth_response",
 ]
 
 
@@ -366,6 +370,25 @@ class Microscope:
         """Noise-free image coordinates ``(n, 4)`` = ``wl1, wl2, wr1, wr2`` [px] of microscope-frame points."""
         return np.hstack([self.project_view(points_mm, "l"), self.project_view(points_mm, "r")])
 
+    @property
+    def image_size_px(self) -> tuple[int, int]:
+        """``(width, height)`` of both images [px]."""
+        return self.optics.image_size_px
+
+    def field_centre_mm(self) -> np.ndarray:
+        """The microscope-frame point seen at the middle of both images, in the focal plane [mm] (the two
+        views' principal points averaged; the weak-perspective inverse of the undistorted projection)."""
+        o = self.optics
+        width, height = o.image_size_px
+        m = 1.0 / o.pixel_mm * (-1.0 if o.inverted else 1.0)
+        pp = (np.asarray(o.left.principal_point_px) + np.asarray(o.right.principal_point_px)) / 2
+        return np.array([((width - 1) / 2 - pp[0]) / m, ((height - 1) / 2 - pp[1]) / m, 0.0])
+
+    def centroid_sigma_px(self, points_mm: np.ndarray) -> np.ndarray:
+        """The dot finder's per-coordinate noise [px] at microscope-frame points ``(n, 3)`` [mm]: it grows with
+        defocus, the height above the focal plane (:class:`CentroidNoise`)."""
+        return self.noise.sigma_px(np.atleast_2d(points_mm)[:, 2], self.optics.depth_of_field_mm)
+
     def visible(self, w: np.ndarray, dot_diameter_mm: float) -> np.ndarray:
         """``(n, 2)`` booleans: is the whole dot inside the image, in the left and the right view."""
         width, height = self.optics.image_size_px
@@ -453,3 +476,54 @@ def from_dict(d: dict) -> Microscope:
         return cls(**kwargs)
     return build(Microscope, d)
 
+
+def describe(microscope: Microscope) -> pd.DataFrame:
+    """What the microscope's parameters imply, with units: the quantities the paper estimates (θX, EX, EZ,
+    K terms to first order), the perspective and the noise floor of METHOD.md §7."""
+    o, st, nz = microscope.optics, microscope.stage, microscope.noise
+    t = np.tan(np.radians(o.convergence_deg) / 2)
+    rows = [
+        ("object pixel", 1e3 * o.pixel_mm, "µm/px", "optics.pixel_mm"),
+        ("image size", f"{o.image_size_px[0]} × {o.image_size_px[1]}", "px", "optics.image_size_px"),
+        ("convergence γ", o.convergence_deg, "degree", "optics.convergence_deg"),
+        ("perspective distance L", o.perspective_distance_mm, "mm", "optics.perspective_distance_mm"),
+        ("magnification change with depth", 100.0 / o.perspective_distance_mm, "%/mm", "1/L"),
+        ("disparity per mm of depth", 2 * t / o.pixel_mm, "px/mm", "2 tan(γ/2) / pixel"),
+        ("EZ (nominal)", o.pixel_mm / (2 * t), "mm/px", "pixel / (2 tan(γ/2))"),
+        ("EX, EY (nominal)", -o.pixel_mm if o.inverted else o.pixel_mm, "mm/px", "inverted image"),
+        ("θX (nominal)", -st.rotation_deg, "degree", "-stage.rotation_deg"),
+        ("KYX ≈ -y_skew", -st.y_skew, "-", "stage.y_skew"),
+        ("KYZ ≈ -y_tilt", -st.y_tilt, "-", "stage.y_tilt"),
+        ("KZX ≈ -z_tilt_x", -st.z_tilt_x, "-", "stage.z_tilt_x"),
+        ("KZY ≈ -z_tilt_y", -st.z_tilt_y, "-", "stage.z_tilt_y"),
+        ("depth of field", f"±{o.depth_of_field_mm:g}", "mm", "optics.depth_of_field_mm"),
+        ("centroid noise in focus", nz.in_focus_px, "px", "noise.in_focus_px"),
+        ("noise floor σX in focus", 1e3 * o.pixel_mm * nz.in_focus_px / np.sqrt(2), "µm", "pixel·σc/√2"),
+        ("noise floor σZ in focus", 1e3 * o.pixel_mm / (2 * t) * np.sqrt(2) * nz.in_focus_px, "µm", "EZ·√2·σc"),
+        ("stage positioning noise", st.positioning_noise_um, "µm", "stage.positioning_noise_um"),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "value", "unit", "from"])
+
+
+def depth_response(microscope: Microscope, z_mm: np.ndarray, *, x_mm: float = 0.0, y_mm: float = 0.0,
+                   baseline_mm: float = 1.0) -> pd.DataFrame:
+    """Disparity and magnification of each view against depth, measured by projecting points.
+
+    For each height ``z`` a point at ``(x, y, z)`` and one ``baseline_mm`` further along x are projected.
+
+    Returns
+    -------
+    DataFrame
+        ``z_mm``, ``disparity_px`` (``w1_r − w1_l`` of the first point), ``magnification_l_px_per_mm``,
+        ``magnification_r_px_per_mm`` (image length of the baseline divided by its length).
+    """
+    z = np.asarray(z_mm, dtype=float)
+    a = np.column_stack([np.full_like(z, x_mm), np.full_like(z, y_mm), z])
+    b = a + [baseline_mm, 0.0, 0.0]
+    wa, wb = microscope.project(a), microscope.project(b)
+    return pd.DataFrame({
+        "z_mm": z,
+        "disparity_px": wa[:, 2] - wa[:, 0],
+        "magnification_l_px_per_mm": np.hypot(*(wb[:, 0:2] - wa[:, 0:2]).T) / baseline_mm,
+        "magnification_r_px_per_mm": np.hypot(*(wb[:, 2:4] - wa[:, 2:4]).T) / baseline_mm,
+    })

@@ -16,7 +16,7 @@ Conversion only: nothing is fitted here, and nothing is tuned to these data.
 
 Conventions (DATA_FORMAT.md): the first camera is the left view, the second the right; ``u`` (column) is
 ``w1`` and ``v`` (row) is ``w2``; the Z positions, sorted, are the positions of sequence ``Z``. The picks'
-plate rows and columns are numbered so that slmlab's plate convention (:func:`slmlab.direct.plate_xy`:
+plate rows and columns are numbered so that slmlab's plate convention (:func:`slmlab.models.frames.plate_xy`:
 ``x = ((cols + 1)/2 − col)·pitch``, ``y = ((rows + 1)/2 − row)·pitch``) gives back the data's own X and Y,
 with the plate's centre as the commanded stage X, Y. The extracted images carry the plate's own frame
 instead (``x_mm, y_mm, z_mm``, origin at the dot between the markers), which is the picks' frame.
@@ -24,14 +24,15 @@ instead (``x_mm, y_mm, z_mm``, origin at the dot between the markers), which is 
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .errors import SlmlabError
-from .io import POINT_COLUMNS, SET_FORMAT, CalibrationSet
+from ..errors import SlmlabError
+from ..io import POINT_COLUMNS, SET_FORMAT, CalibrationSet, atomic_write_text, json_text
 
 __all__ = ["read_uvmat_points", "zstack_set_from_points", "pivchallenge_set", "pivchallenge_picks",
            "pivchallenge_image_set", "dice_image_set", "chessboard_image_set", "PIV_CHALLENGE_DIR", "DICE_DIR",
@@ -145,11 +146,7 @@ def pivchallenge_image_set(folder: str | Path, out_dir: str | Path, *, level_off
     mm, and ``meta.json`` describing the plate: 15 mm pitch, bright dots, two levels (rows alternating
     between two depths, offset by half a pitch), larger than the field (no rows or cols: its square and
     triangle markers anchor the numbering). ``level_offset_mm``: the second level's z in the plate's frame,
-    if known (:func:`slmlab.study.measure_level_offset` measures it)."""
-    import os
-
-    from .io import atomic_write_text, json_text
-
+    if known (:func:`slmlab.studies.realrigs.measure_level_offset` measures it)."""
     folder, out_dir = Path(folder).resolve(), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
@@ -177,10 +174,6 @@ CHESSBOARD_DIR = "opencv-stereo-chessboard-9x6"
 def _free_pose_set(out_dir: Path, pairs: list[tuple[Path, Path]], plate: dict, size_px, source: str) -> Path:
     """A set of stereo pairs in free poses (no known stage moves): sequence ``T`` (as the simulator's held
     poses), every position at stage zero, images named by ``stage.csv`` relative to ``out_dir``."""
-    import os
-
-    from .io import atomic_write_text, json_text
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]

@@ -2,9 +2,9 @@
 
 The paper's chain, applied to measured image coordinates ``wl1, wl2, wr1, wr2`` [px]:
 
-1. §3 image distortion correction of each view (:mod:`slmlab.distortion`);
+1. §3 image distortion correction of each view (:mod:`slmlab.paper.distortion`);
 2. §4 alignment: the right view rotated by ``α`` and shifted by ``δw2``; the disparity ``D = w1_r − w1_l``
-   corrected for its distortion (:mod:`slmlab.alignment`), in these aligned coordinates;
+   corrected for its distortion (:mod:`slmlab.paper.alignment`), in these aligned coordinates;
 3. rotation of both views by ``θX`` (Eqs 23–25) so that the stage X axis runs along ``w1``;
 4. **Model 0** (Eq 19): ``X = EX·(w1_l + w1_r)/2``, ``Y = EY·(w2_l + w2_r)/2``, ``Z = EZ·D``;
 5. **Model 1** (Eq 21): ``X1 = X + KYX·Y + BYX``, ``Y1 = Y``, ``Z1 = Z + KYZ·Y + BYZ``;
@@ -27,8 +27,8 @@ import pandas as pd
 from .alignment import (DISPARITY_METHODS, AlignmentResult, DisparityCorrection, estimate_alignment, path_angles,
                         rotate, sequence_coordinates)
 from .distortion import DistortionResult, ViewCorrection, estimate_distortion
-from .errors import SlmlabError
-from .io import CalibrationSet
+from ..errors import SlmlabError
+from ..io import CalibrationSet
 
 __all__ = ["SCALE_ESTIMATORS", "PaperParameters", "fit_paper", "displacements", "COMPENSATION_NAMES", "suspect_rows"]
 

@@ -19,7 +19,7 @@ Two ways to calibrate, chosen from the set (``mode="auto"``):
 ``"zstack"``
     only a Z sequence, as in a lab with a Z stage alone. X and Y come from the plate: dot ``[row, col]`` of
     a ``rows × cols`` plate of pitch ``p`` sits at ``x = ((cols + 1)/2 − col)·p``, ``y = ((rows + 1)/2 − row)·p``
-    (:meth:`slmlab.microscope.Plate.nominal_points`; ``[1, 1]`` at ``+x, +y``) plus the commanded X, Y; Z is
+    (:meth:`slmlab.virtual.microscope.Plate.nominal_points`; ``[1, 1]`` at ``+x, +y``) plus the commanded X, Y; Z is
     the commanded stage Z. The frame is the plate's axes and the Z stage's direction.
 
 In both, a stage's own errors at each position (positioning noise, lead and straightness errors: the same
@@ -59,19 +59,18 @@ from itertools import combinations_with_replacement
 import numpy as np
 import pandas as pd
 
-from .checks import check_axes
-from .errors import SlmlabError
-from .io import CalibrationSet, IMAGE_COLUMNS
-from .linefit import point_keys
-from .models import Model, register
+from ..errors import SlmlabError
+from ..io import CalibrationSet, IMAGE_COLUMNS
+from ..linefit import point_keys
+from .base import Model, register
+from .folds import row_folds
+from .frames import plate_xy, world_positions
 
-__all__ = ["features", "fit_direct", "DirectModel", "plate_xy", "world_positions", "LEGACY_FRAME"]
+__all__ = ["features", "fit_direct", "fit_frame", "DirectModel", "LEGACY_FRAME"]
 
 #: the normalisation of model files written before the frame was fitted: centre, scale, disparity direction
 LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
-SEQUENCES = ("X", "Y", "Z", "V")
 RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal matrices
-STAGE = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
 
 
 def _exponents(degree: int, nvar: int = 3) -> list[tuple[int, ...]]:
@@ -164,69 +163,7 @@ def _features_t(powers: np.ndarray, degree: int) -> np.ndarray:
     return out
 
 
-def plate_xy(row, col, plate: dict) -> np.ndarray:
-    """Plate coordinates ``(n, 2)`` [mm] of dots ``[row, col]`` of a plate ``{rows, cols, pitch_mm}``: the
-    convention of :meth:`slmlab.microscope.Plate.nominal_points` (``[1, 1]`` at ``+x, +y``, centred)."""
-    p = float(plate["pitch_mm"])
-    return np.column_stack([((plate["cols"] + 1) / 2 - np.asarray(col, float)) * p,
-                            ((plate["rows"] + 1) / 2 - np.asarray(row, float)) * p])
-
-
 # --------------------------------------------------------------------------------------------- rows
-def world_positions(cal: CalibrationSet, mode: str = "auto"):
-    """The rows a model calibrates on and where their dots are in the world.
-
-    Returns ``(rows, world (n, 3) [mm], mode)``:
-
-    ``"target"``
-        a known-target set (``x_mm, y_mm, z_mm``): world = commanded stage position + the dot's place on its
-        target (a stepped target or a two-level plate in one pose needs no stage motion; with stage motion the
-        two add). Rows whose target position is not known are left out.
-    ``"zstack"``
-        only a Z sequence, of a plate with rows, cols and pitch: world = stage + the plate's lattice
-        (:func:`plate_xy`).
-    ``"moves"``
-        stage moves of a plate whose place on the stage is unknown: world = the commanded stage position, up
-        to one unknown offset per dot and sequence.
-
-    Rows need all four image coordinates; the static ``grid`` pair is not used (it is another plate).
-    """
-    pts = cal.points[cal.points["sequence"] != "grid"]
-    pts = pts[pts[IMAGE_COLUMNS].notna().all(axis=1)]
-    if mode not in ("auto", "moves", "zstack", "target"):
-        raise SlmlabError(f"unknown mode {mode!r}; use 'auto', 'moves', 'zstack' or 'target'")
-    if cal.known_target and mode in ("auto", "target"):
-        world = cal.world(pts)
-        keep = np.isfinite(world).all(axis=1)
-        pts, world = pts[keep], world[keep]
-        if len(pts) == 0:
-            raise SlmlabError("no dot has both image coordinates and a known position on its target (x_mm, y_mm, "
-                              "z_mm); for a two-level plate give plates.moving.level_offset_mm", cal.path)
-        check_axes(world, "target", cal.path)
-        return pts, world, "target"
-    if mode == "target":
-        raise SlmlabError("mode 'target' needs a known-target set (columns x_mm, y_mm, z_mm)", cal.path)
-    pts = pts[pts["sequence"].isin(SEQUENCES)]
-    pts = pts[pts.groupby("sequence")["position"].transform("nunique") >= 2]
-    if len(pts) == 0:
-        raise SlmlabError("needs sequences with stage motion (X, Y, Z or V) seen in both views, or a known target "
-                          "(x_mm, y_mm, z_mm)", cal.path)
-    moved = pts.groupby("sequence")[STAGE].agg(lambda s: float(s.max() - s.min()))
-    lateral = bool((moved[["stage_x_mm", "stage_y_mm"]].to_numpy() > 0).any())
-    if mode == "auto":
-        mode = "moves" if lateral else "zstack"
-    if mode == "moves" and not lateral:
-        raise SlmlabError("mode 'moves' needs stage moves in X or Y; a set with a Z sequence only calibrates "
-                          "in mode 'zstack' (X, Y from the plate's pitch)", cal.path)
-    world = pts[STAGE].to_numpy(float)
-    if mode == "zstack":
-        plate = cal.plate("Z")
-        if plate.get("rows") is None:
-            raise SlmlabError("a Z stack of a plate without rows and cols needs x_mm, y_mm, z_mm columns (extract the "
-                              "set with 'python -m slmlab extract')", cal.path)
-        world = world + np.column_stack([plate_xy(pts["row"], pts["col"], plate), np.zeros(len(pts))])
-    check_axes(world, mode, cal.path)
-    return pts, world, mode
 
 
 def _rows(cal: CalibrationSet, mode: str):
@@ -492,59 +429,21 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
     w = pts[IMAGE_COLUMNS].to_numpy(float)
     dots = point_keys(pts["row"], pts["col"]) * 16 + positions // 1_000_000
     known_depth = target[:, 2] if mode == "target" else None
-    frame = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy(), depth=known_depth)
+    in_z = (pts["sequence"] == "Z").to_numpy()
+    frames = {3: fit_frame(w, dots, in_z, depth=known_depth)}
     depth_cap = (len(np.unique(np.round(target[:, 2], 6))) if mode in ("target", "zstack") else max_degree + 1)
-    # variance components (one row's scatter, the stage's error per position) from a rich polynomial
-    # and how one point's scatter grows with defocus (the rows' relative precision)
-    rich = max(d for d in range(1, max_degree + 1) if d == 1 or len(_exponents(d)) * 4 < len(w))
-    phi_rich = features(w, rich, frame)
-    rich_mask = _monomial_mask([rich] * 3, 3, depth_cap)
-    depth = _variables(w, frame)[:, 2]
-    pre = _solve(phi_rich, target, groups, positions, mask=rich_mask)
-    precision = _precision(_noise_vs_depth(depth, pre["within"], pre["weights"], 1.0), depth)
-    pre = _solve(phi_rich, target, groups, positions, precision=precision, mask=rich_mask)
-    variance = (pre["sigma_e_mm"] ** 2, pre["sigma_u_mm"] ** 2)
-    n_pos = pd.Series(positions).groupby(positions // 1_000_000).nunique()
-    if mode == "moves":  # every third position of each sequence held out
-        held = (pts["position"].to_numpy() % 3 == 0)
-        folds = [(~held, held)]
-    else:  # the dots' world positions are known: crossed folds of positions and dots
-        from .selection import row_folds
-
-        folds = row_folds(pts, mode, diagonal=True)
-    cv, variables_cv = {}, {}
-    frames = {3: frame}
+    variance, precision = _variance_components(w, frames[3], target, groups, positions, max_degree, depth_cap)
     if variables != 3:
-        frames[4] = fit_frame(w, dots, (pts["sequence"] == "Z").to_numpy(), depth=known_depth, variables=4)
+        frames[4] = fit_frame(w, dots, in_z, depth=known_depth, variables=4)
         if variables == 4:
             frames = {4: frames[4]}
     if degree is None:
-        trains = [tr for tr, _ in folds]
-        if (not folds or any(not tr.any() or not te.any() for tr, te in folds)
-                or (mode == "moves" and (min(len(np.unique(positions[tr])) for tr in trains) < 2))):
-            raise SlmlabError("too few stage positions to choose the degree (at least 3 per sequence); give "
-                              "degree=... or image more positions", cal.path)
-        # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
-        sampled = (min(pd.Series(positions[tr]).groupby(positions[tr] // 1_000_000).nunique().min() for tr in trains)
-                   if n_pos.min() >= 3 else max_degree + 1)
-        chosen = {}
-        for nv, fr in frames.items():
-            chosen[nv] = _choose_degrees(w, fr, target, groups, positions, folds, variance, precision, depth_cap,
-                                         max_degree, sampled, one_se=mode == "moves")
-            variables_cv[nv] = [float(min(v[k] for v in chosen[nv][1].values())) for k in range(3)]
-        nv = 3
-        if 4 in chosen and 3 in chosen:
-            tiny = 1e-12  # mm: held-out errors of zero (noise-free data) compare as equal
-            ratio = np.exp(np.mean(np.log(np.maximum(variables_cv[4], tiny) / np.maximum(variables_cv[3], tiny))))
-            nv = 4 if ratio < 0.95 else 3
-        elif 4 in chosen:
-            nv = 4
-        frame = frames[nv]
-        degrees, cv = chosen[nv]
-        cv = {d: [float(x) for x in v] for d, v in cv.items()}
+        folds = _degree_folds(pts, mode)
+        frame, degrees, cv, variables_cv = _choose_variables_and_degrees(
+            cal, w, frames, target, groups, positions, folds, variance, precision, depth_cap, max_degree, mode)
     else:
         degrees = [int(d) for d in np.broadcast_to(np.asarray(degree, int), (3,))]
-        frame = frames[4] if variables == 4 else frames[3]
+        frame, cv, variables_cv = (frames[4] if variables == 4 else frames[3]), {}, {}
     phi = features(w, max(degrees), frame)
     mask = _monomial_mask(degrees, _nvar(frame), depth_cap)
     dots_only = point_keys(pts["row"], pts["col"]) if mode != "moves" else None
@@ -562,8 +461,72 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
         if length_reference == "plate":
             coef[:, :2] *= scale["factor"]
             const[:2] *= scale["factor"]
+    sigma, noise_poly = _point_scatter(pts, fit, mode, _variables(w, frame)[:, 2])
     good = wts > 0.1
-    within, cov, sigma = fit["within"], fit["cov"], fit["sigma_e_mm"]
+    suspects = pts[~good][["sequence", "position", "row", "col"]].assign(weight=wts[~good])
+    return {"coef": coef, "const": const, "frame": frame, "degree": max(degrees), "degrees": degrees, "cv": cv,
+            "weights": wts, "sigma_mm": sigma, "stage_error_mm": fit["sigma_u_mm"],
+            "noise_poly": noise_poly, "cov": fit["cov"], "feature_mean": fit["feature_mean"], "suspects": suspects,
+            "mode": mode, "length_reference": scale, "variables_cv": variables_cv}
+
+
+def _variance_components(w, frame, target, groups, positions, max_degree: int, depth_cap: int):
+    """The variance components (one row's scatter, the stage's error per position) from a rich polynomial,
+    and how one point's scatter grows with defocus (the rows' relative precision). Returns ``(variance,
+    precision)`` for :func:`_solve`."""
+    rich = max(d for d in range(1, max_degree + 1) if d == 1 or len(_exponents(d)) * 4 < len(w))
+    phi_rich = features(w, rich, frame)
+    rich_mask = _monomial_mask([rich] * 3, 3, depth_cap)
+    depth = _variables(w, frame)[:, 2]
+    pre = _solve(phi_rich, target, groups, positions, mask=rich_mask)
+    precision = _precision(_noise_vs_depth(depth, pre["within"], pre["weights"], 1.0), depth)
+    pre = _solve(phi_rich, target, groups, positions, precision=precision, mask=rich_mask)
+    return (pre["sigma_e_mm"] ** 2, pre["sigma_u_mm"] ** 2), precision
+
+
+def _degree_folds(pts, mode: str) -> list:
+    """The held-out folds the degree is chosen on: every third position of each sequence for stage moves;
+    crossed folds of positions and dots where the dots' world positions are known."""
+    if mode == "moves":
+        held = (pts["position"].to_numpy() % 3 == 0)
+        return [(~held, held)]
+    return row_folds(pts, mode, diagonal=True)
+
+
+def _choose_variables_and_degrees(cal, w, frames, target, groups, positions, folds, variance, precision,
+                                  depth_cap, max_degree, mode):
+    """The variables (3 or 4, where the fourth lowers the held-out error by 5 %) and the degree per
+    coordinate (:func:`_choose_degrees`). Returns ``(frame, degrees, cv, variables_cv)``."""
+    trains = [tr for tr, _ in folds]
+    if (not folds or any(not tr.any() or not te.any() for tr, te in folds)
+            or (mode == "moves" and (min(len(np.unique(positions[tr])) for tr in trains) < 2))):
+        raise SlmlabError("too few stage positions to choose the degree (at least 3 per sequence); give "
+                          "degree=... or image more positions", cal.path)
+    # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
+    n_pos = pd.Series(positions).groupby(positions // 1_000_000).nunique()
+    sampled = (min(pd.Series(positions[tr]).groupby(positions[tr] // 1_000_000).nunique().min() for tr in trains)
+               if n_pos.min() >= 3 else max_degree + 1)
+    chosen, variables_cv = {}, {}
+    for nv, fr in frames.items():
+        chosen[nv] = _choose_degrees(w, fr, target, groups, positions, folds, variance, precision, depth_cap,
+                                     max_degree, sampled, one_se=mode == "moves")
+        variables_cv[nv] = [float(min(v[k] for v in chosen[nv][1].values())) for k in range(3)]
+    nv = 3
+    if 4 in chosen and 3 in chosen:
+        tiny = 1e-12  # mm: held-out errors of zero (noise-free data) compare as equal
+        ratio = np.exp(np.mean(np.log(np.maximum(variables_cv[4], tiny) / np.maximum(variables_cv[3], tiny))))
+        nv = 4 if ratio < 0.95 else 3
+    elif 4 in chosen:
+        nv = 4
+    degrees, cv = chosen[nv]
+    return frames[nv], degrees, {d: [float(x) for x in v] for d, v in cv.items()}, variables_cv
+
+
+def _point_scatter(pts, fit: dict, mode: str, depth) -> tuple[np.ndarray, np.ndarray]:
+    """One point's scatter ``sigma`` (3,) [mm] and its growth with defocus ``noise_poly`` (3, 3), from the
+    final fit's within-position residuals (net of the plate's fabrication errors where the dots' world
+    positions are known)."""
+    wts, within, sigma = fit["weights"], fit["within"], fit["sigma_e_mm"]
     n_pt = np.bincount(fit["pinv"], wts)[fit["pinv"]]
     dof = np.mean(n_pt / np.maximum(n_pt - 1, 1))
     if mode == "moves":
@@ -579,12 +542,7 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
         within = within - fab[dinv]
         dof *= np.mean(n_d[dinv] / np.maximum(n_d[dinv] - 1, 1))
         sigma = np.sqrt(np.sum(wts[:, None] * within ** 2, 0) / wts.sum() * dof)
-    noise_poly = _noise_vs_depth(_variables(w, frame)[:, 2], within, wts, dof)
-    suspects = pts[~good][["sequence", "position", "row", "col"]].assign(weight=wts[~good])
-    return {"coef": coef, "const": const, "frame": frame, "degree": max(degrees), "degrees": degrees, "cv": cv,
-            "weights": wts, "sigma_mm": sigma, "stage_error_mm": fit["sigma_u_mm"],
-            "noise_poly": noise_poly, "cov": cov, "feature_mean": fit["feature_mean"], "suspects": suspects,
-            "mode": mode, "length_reference": scale, "variables_cv": variables_cv}
+    return sigma, _noise_vs_depth(depth, within, wts, dof)
 
 
 @register

@@ -1,4 +1,4 @@
-"""Rendering stereo images of the calibration plates (METHOD.md §7, images; DATA_FORMAT.md ``images/``).
+"""Rendering stereo images of the calibration plates through the virtual microscope (a set's ``images/``).
 
 Each dot is a disk on the plate. Its image is found with the *same* projection and distortion as points
 mode: the centre maps to :meth:`Microscope.project_view` of the dot centre, and the disk to the ellipse given
@@ -24,10 +24,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
+from tqdm import tqdm
 
-from .errors import SlmlabError
-from .io import CalibrationSet, atomic_write_bytes
+from ..errors import SlmlabError
+from ..images.boards import charuco_board
+from ..images.imageset import PlateSpec
+from ..io import SET_FORMAT, CalibrationSet, atomic_write_bytes, atomic_write_text, json_text, write_csv
 from .microscope import Microscope, Plate, from_dict
+from .sessions import Session, tilt_matrix
+from .simulate import stage_origin
 
 __all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png",
            "expose", "render_board", "render_board_set", "board_orientation"]
@@ -173,8 +179,6 @@ def render_set(cal: CalibrationSet, out_dir: str | Path, *, progress: bool | Non
     Uses the simulator's parameters, seed and stage origin stored in ``cal.meta["simulator"]`` and the true
     dot positions of ``cal.truth``, so the rendered centres are exactly those of ``truth.csv``.
     """
-    from tqdm import tqdm
-
     sim = cal.meta.get("simulator")
     if sim is None or cal.truth is None:
         raise SlmlabError("only simulated sets (with truth.csv and meta.json's 'simulator') can be rendered", cal.path)
@@ -216,8 +220,6 @@ def render_plate(microscope: Microscope, plate: Plate, centre_mm=(0.0, 0.0, 0.0)
     image, truth
         the 8-bit image and a DataFrame ``row, col, w1, w2`` [px] of every rendered dot's true centre.
     """
-    import pandas as pd
-
     i, j, pts = plate.nominal_points()
     keep = np.ones(len(i), bool)
     for r, c in drop or []:
@@ -305,9 +307,7 @@ def board_orientation(microscope: Microscope, tilt_deg=(0.0, 0.0)) -> np.ndarray
     is a mirror image of the focal plane (its inverted optics, as the paper's ``EX`` and ``EY``, both
     negative, imply), which a dot plate never shows but an ArUco code does: where the view is mirrored the
     board's y axis is turned over."""
-    from .simulate import _tilt
-
-    r = _tilt(*tilt_deg)
+    r = tilt_matrix(*tilt_deg)
     p0 = microscope.project_view(np.zeros((1, 3)), "l")[0]
     j = np.column_stack([microscope.project_view(1e-3 * r[:, k][None, :], "l")[0] - p0 for k in (0, 1)])
     # image w2 points down: a view that is not mirrored has a negative Jacobian determinant
@@ -323,13 +323,6 @@ def render_board_set(out_dir: str | Path, microscope: Microscope, board: dict, s
     ``board``: ``squares [x, y]``, ``square_mm``, ``marker_mm``, ``dictionary``, ``legacy`` (OpenCV's). The
     board's centre is at the middle of the field, in focus, at stage zero; each position moves the stage
     along Z (the paper preset's stage, with its axes and errors)."""
-    import pandas as pd
-
-    from .boards import charuco_board
-    from .imageset import PlateSpec
-    from .io import SET_FORMAT, atomic_write_text, json_text, write_csv
-    from .simulate import Session, stage_origin
-
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
     spec = PlateSpec("moving", None, None, float(board["square_mm"]), pattern="charuco",

@@ -16,11 +16,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .io import IMAGE_COLUMNS, CalibrationSet
-from .models import calibrate
+from ..images.imageset import extract_set
+from ..io import IMAGE_COLUMNS, CalibrationSet, read_set, write_csv
+from ..models import calibrate
+from ..models.frames import dot_labels, plate_xy, world_positions
+from ..models.soloff import SoloffModel, fit_soloff
+from ..virtual.render import board_orientation, render_board_set
+from ..virtual.sessions import Session, zstack_frame
+from ..virtual.simulate import stage_origin, stepped_target, target_set
+from .workspace import volumetric_comparison
 
 __all__ = ["extraction_vs_picks", "dots_per_image", "compare_on_planes", "twin_limit", "charuco_stack",
-           "known_targets", "rms_after_offset"]
+           "known_targets", "rms_after_offset", "measure_level_offset"]
 
 VIEWS = (("l", "u1_px", "v1_px", "left"), ("r", "u2_px", "v2_px", "right"))
 
@@ -72,8 +79,6 @@ def dots_per_image(points: pd.DataFrame) -> pd.DataFrame:
 
 
 def _truth(cal: CalibrationSet, rows: pd.DataFrame) -> np.ndarray:
-    from .direct import plate_xy
-
     if cal.known_target:
         return cal.world(rows)
     xy = plate_xy(rows["row"], rows["col"], cal.plate(rows["sequence"].iloc[0])) + rows[["stage_x_mm", "stage_y_mm"]].to_numpy()
@@ -117,12 +122,9 @@ def twin_limit(picks: CalibrationSet, calibrate_on, check_on, *, replicas: int =
     ``check_on`` (RMS after one offset); the **oracle** reconstructs the checks with the true map itself
     (weighted least squares on the four equations, the lowest error possible). Returns, per variant, the
     mean RMS [µm] per coordinate over the replicas and its ratio to the reference (the first variant)."""
-    from .direct import world_positions
-    from .soloff import SoloffModel, fit_soloff, _dot_labels
-
     pts, world, _ = world_positions(picks)
     w_real = pts[IMAGE_COLUMNS].to_numpy(float)
-    truth_map = SoloffModel(fit_soloff(world, w_real, 3, 2, dots=_dot_labels(pts)))
+    truth_map = SoloffModel(fit_soloff(world, w_real, 3, 2, dots=dot_labels(pts)))
     sigma = np.sqrt(np.maximum(truth_map.noise_poly[:, 0], 1e-12))
     w_true = truth_map.project(world)
     variants = variants or {"quadratic (reference)": {"model": "quadratic"}, "default": {}}
@@ -154,11 +156,6 @@ def charuco_stack(microscope, board: dict, calibrate_z_mm, check_z_mm, folder: s
     depths. Returns ``(table, sets)``: the corners found and their RMS error against the rendered truth [px],
     and the check's RMS error [µm] per coordinate and over the noise floor (the true model triangulating the
     same extracted corners), both in the board's frame; ``sets`` the two calibration sets."""
-    from .imageset import extract_set
-    from .io import read_set, write_csv
-    from .render import board_orientation, render_board_set
-    from .simulate import Session, stage_origin, zstack_frame
-
     folder = Path(folder)
     sets, merged = {}, {}
     for name, z, s in (("calibration", calibrate_z_mm, seed), ("check", check_z_mm, seed + 1)):
@@ -193,9 +190,6 @@ def known_targets(microscope, val, *, seed: int = 3) -> pd.DataFrame:
     """Known 3D targets calibrating the default model: a stepped target (five heights over ±1 mm) in one pose,
     a two-level plate (rows 0.6 mm apart) in one pose, and the stepped target at three stage Z positions; RMS
     displacement error over the noise floor on the volume run ``val``, per coordinate."""
-    from .simulate import stepped_target, target_set
-    from .study import volumetric_comparison
-
     lattice = stepped_target(steps_mm=(0.0,))
     cases = {"stepped target, one pose": (stepped_target(), [[0.0, 0.0, 0.0]]),
              "two-level plate, one pose": (lattice.assign(z_mm=np.where(lattice["row"] % 2 == 0, -0.6, 0.0)),
@@ -208,3 +202,27 @@ def known_targets(microscope, val, *, seed: int = 3) -> pd.DataFrame:
         rows.append({"calibration": label, "model": model.describe(),
                      **{f"{c}_vs_floor": float(t[f"{c}_vs_floor"]) for c in "XYZ"}})
     return pd.DataFrame(rows)
+
+
+def measure_level_offset(points: pd.DataFrame, model) -> dict:
+    """The depth of a two-level plate's second level in its frame [mm], measured from a Z stack: every
+    extracted dot seen in both views (``level`` 0 or 1) is reconstructed by ``model`` (calibrated on the first
+    level, whose z is 0), and per plane the median Z of the second level's dots less that of the first's is
+    one estimate. Planes where the second level would leave the calibrated depth range (extrapolation) are
+    left out, after a first estimate from all planes. Returns ``offset_mm`` (the median over planes),
+    ``spread_mm`` (their standard deviation), ``planes`` (per-plane values) and ``dots`` per level."""
+    both = points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    if "level" not in both.columns or not (both["level"] == 1).any():
+        raise ValueError("no second-level dots: extract a two-level plate (plates.moving.levels = 2)")
+    z = model.reconstruct(both[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))[:, 2]
+    both = both.assign(Z=z)
+    per = both.groupby(["position", "level"])["Z"].median().unstack("level").dropna()
+    stage = both.groupby("position")["stage_z_mm"].first().loc[per.index]
+    d = per[1] - per[0]
+    first = float(np.median(d))
+    lo, hi = float(both.loc[both["level"] == 0, "stage_z_mm"].min()), float(both.loc[both["level"] == 0, "stage_z_mm"].max())
+    inside = (stage + first >= lo) & (stage + first <= hi)
+    use = d[inside] if inside.sum() >= 2 else d
+    return {"offset_mm": float(np.median(use)), "spread_mm": float(np.std(use, ddof=1)) if len(use) > 1 else float("nan"),
+            "planes": {int(k): float(v) for k, v in use.items()},
+            "dots": {int(k): int(v) for k, v in both["level"].value_counts().sort_index().items()}}

@@ -1,5 +1,5 @@
 """The paper's Models 0, 1 and 2 as registered vision models ``paper-m0``, ``paper-m1``, ``paper-m2``
-(paper §3–§5; METHOD.md §1–§5). The chain and its estimators are in :mod:`slmlab.vision`."""
+(paper §3–§5). The chain and its estimators are in :mod:`slmlab.paper.chain`."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .models import Model, register
-from .vision import PaperParameters, fit_paper, suspect_rows
+from ..paper.chain import PaperParameters, fit_paper, suspect_rows
+from .base import Model, register
 
 __all__ = ["PaperModel", "PaperM0", "PaperM1", "PaperM2"]
 

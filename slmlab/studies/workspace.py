@@ -1,133 +1,40 @@
-"""Studies over repeated simulations and calibration tests (paper §6, Tables 2–4; METHOD.md §6).
+"""Beyond the paper: the default model against the noise floor over the whole workspace (notebook 09).
 
-Each study draws fresh simulated sets with seeds derived from one base seed, fits the paper's chain and
-collects its parameters, so that a table can show our mean ± spread beside the paper's reported values.
+Random stage positions filling the validation's volume (not only the three axes), what each of the stage's
+errors costs, calibration from a Z stack alone, per-point uncertainty and its coverage, mrcal-style
+cross-validation differences, and accuracy against the number of calibration positions. Every study draws
+its sets from the virtual microscope with seeds derived from one base seed.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
+from scipy.stats import norm
 
-from .evaluation import ELEMENTS, Evaluation
-from .microscope import Microscope
-from .paths import paper_reference
-from .simulate import PAPER_TESTS, Session, simulate_set
-from .vision import fit_paper
+from ..io import IMAGE_COLUMNS, CalibrationSet
+from ..models import calibrate
+from ..models.frames import plate_xy
+from ..paper.chain import displacements
+from ..virtual.microscope import Microscope
+from ..virtual.sessions import paper_test, volume_session, zstack_frame, zstack_plate, zstack_session
+from ..virtual.simulate import noise_floor, simulate_set
 
-__all__ = ["TABLE4_NAMES", "repeat_fits", "table2", "table3", "table4", "headline_precision", "comparison_table",
-           "z_calibration_samples", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
-           "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out", "workspace_grid",
-           "cross_validation_diff", "subsample_positions", "accuracy_vs_positions", "commanded_frame_limit",
-           "measure_level_offset", "disparity_recovery", "against_model"]
-
-TABLE4_NAMES = ["thetaX_deg", "EX_mm_per_px", "EY_mm_per_px", "EZ_mm_per_px", "KYX", "BYX_mm", "KYZ", "BYZ_mm",
-                "KZX", "BZX_mm", "KZY", "BZY_mm"]
-
-
-def repeat_fits(microscope: Microscope, sessions: list[Session], seed: int, **fit_options) -> pd.DataFrame:
-    """Fit the paper's chain (Model 2) on one fresh set per session; one row of parameters per set."""
-    seeds = np.random.SeedSequence(seed).generate_state(len(sessions))
-    rows = []
-    for s, sd in zip(sessions, seeds):
-        params, dist, align = fit_paper(simulate_set(microscope, s, seed=int(sd)), **fit_options)
-        rows.append({"session": s.name, "seed": int(sd), **params.as_dict(),
-                     "alpha_std_over_points_deg": float(np.degrees(align.alpha_std_rad)),
-                     "dw2_std_over_samples_px": align.dw2_std_px,
-                     **{f"{k}_single_pass": getattr(align.disparity["single-pass"], a)
-                        for k, a in (("aD", "aD"), ("bD", "bD"), ("cD_px", "cD_px"))}})
-    return pd.DataFrame(rows)
+__all__ = ["volume_rows", "volume_run", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
+           "STAGE_ERRORS", "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out",
+           "workspace_grid", "cross_validation_diff", "subsample_positions", "accuracy_vs_positions",
+           "commanded_frame_limit"]
 
 
-def table2(fits: pd.DataFrame) -> pd.DataFrame:
-    """Table 2: α, δw2, aD, bD, cD (the joint fit, METHOD.md §2), mean ± std over the repeated fits, beside
-    the paper's values; and the first reading's single pass for comparison."""
-    ref = paper_reference("table2")
-    rows = []
-    for name, key in (("alpha_deg", "alpha_deg"), ("dw2_px", "dw2_px"), ("aD", "aD"), ("bD", "bD"), ("cD_px", "cD_px")):
-        r = ref[key]
-        paper_mean, paper_std = (r["mean"], r["std"]) if isinstance(r, dict) else (r, np.nan)
-        rows.append({"parameter": name, "ours_mean": fits[name].mean(), "ours_std_over_runs": fits[name].std(ddof=1),
-                     "paper": paper_mean, "paper_std": paper_std})
-    for name, key in (("aD (single pass)", "aD_single_pass"), ("bD (single pass)", "bD_single_pass"),
-                      ("cD_px (single pass)", "cD_px_single_pass")):
-        rows.append({"parameter": name, "ours_mean": fits[key].mean(), "ours_std_over_runs": fits[key].std(ddof=1),
-                     "paper": np.nan, "paper_std": np.nan})
-    df = pd.DataFrame(rows)
-    df["ours_vs_paper_percent"] = 100 * (df["ours_mean"] / df["paper"] - 1)
-    return df
-
-
-def table3(sets: dict) -> pd.DataFrame:
-    """Table 3: the five calibration tests (step and positions), with the samples each set provides."""
-    rows = []
-    for k, (step, n) in PAPER_TESTS.items():
-        cal = sets.get(k)
-        row = {"test": k, "step_mm": step, "NUMX": n[0], "NUMY": n[1], "NUMZ": n[2]}
-        if cal is not None:
-            both = cal.points[["wl1", "wr1"]].notna().all(axis=1)
-            for s in "XYZ":
-                row[f"dots_{s}"] = int((both & (cal.points["sequence"] == s)).sum())
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def table4(fits: pd.DataFrame) -> pd.DataFrame:
-    """Table 4: the twelve parameters over the calibration tests, mean, std and the largest relative deviation
-    of a test from the mean [%], beside the paper's mean ± std."""
-    ref = paper_reference("table4")
-    rows = []
-    for name in TABLE4_NAMES:
-        v = fits[name].to_numpy()
-        mean = float(np.mean(v))
-        rows.append({"parameter": name, "ours_mean": mean, "ours_std": float(np.std(v, ddof=1)),
-                     "ours_max_rel_dev_percent": float(100 * np.max(np.abs(v / mean - 1))) if mean else np.nan,
-                     "paper_mean": ref[name]["mean"], "paper_std": ref[name]["std"],
-                     "ours_vs_paper_percent": 100 * (mean / ref[name]["mean"] - 1)})
-    return pd.DataFrame(rows)
-
-
-def headline_precision(ev: Evaluation, share: float = 95.0) -> dict:
-    """The half-width [mm] of the interval holding ``share`` % of each component's residuals over the three
-    sequences: the paper's headline (0.01 / 0.01 / 0.015 mm) in our terms."""
-    res = ev.residuals
-    return {c: float(np.percentile(np.abs(res[f"E_{c}"]), share)) for c in "XYZ"}
-
-
-def comparison_table(evaluations: dict[str, Evaluation]) -> pd.DataFrame:
-    """Per model and residual element: max and RMS [mm], and S at RA3 and RA5 [%]."""
-    rows = []
-    for name, ev in evaluations.items():
-        summ = ev.summary.set_index("element")
-        for el in ELEMENTS:
-            if el in summ.index:
-                rows.append({"model": name, "element": el, "max_abs_mm": summ.loc[el, "max_abs_mm"],
-                             "rms_mm": summ.loc[el, "rms_mm"], "S_RA3_percent": ev.s.loc[el, "RA3"],
-                             "S_RA5_percent": ev.s.loc[el, "RA5"]})
-    return pd.DataFrame(rows)
-
-
-def z_calibration_samples(cal, params) -> pd.DataFrame:
-    """Fig 10: the Z sequence's stage displacements ``ΔZ_A`` [mm] against the corrected disparity increments
-    ``ΔD`` [px] (relative to position 1)."""
-    from .alignment import sequence_coordinates
-    from .vision import displacements
-
-    df = sequence_coordinates(cal, "Z")
-    _, _, d = params.image_stage(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
-    dd, ds, keep = displacements(df, d[:, None])
-    return pd.DataFrame({"position": df["position"].to_numpy()[keep], "dD_px": dd[:, 0], "dZ_A_mm": ds[:, 2]})
-
-
-def _volume_rows(val) -> pd.DataFrame:
+def volume_rows(val) -> pd.DataFrame:
     """The volume run's ``V`` rows seen in both views."""
     return val.points[val.points["sequence"] == "V"].dropna(subset=["wl1", "wl2", "wr1", "wr2"])
 
 
-def _volume_run(microscope: Microscope, n_volume: int, seed: int):
+def volume_run(microscope: Microscope, n_volume: int, seed: int):
     """The volume run of the studies below (``n_volume`` random positions), seeded from ``seed``."""
-    from .simulate import simulate_set, volume_session
-
     return simulate_set(microscope, volume_session(n_volume, seed=seed + 4), seed=seed + 6)
 
 
@@ -135,11 +42,8 @@ def volumetric_comparison(models: dict, val, frame: np.ndarray | None = None) ->
     """RMS displacement error [µm] per coordinate on a volumetric run ``V`` (relative to its position 1,
     against the truth) for each model ``{name: model}`` and for the simulator's own true-model
     triangulation (the noise floor). ``frame``: a 3 × 3 matrix taking stage-frame displacements to the
-    models' frame (for a Z-stack calibration, :func:`slmlab.simulate.zstack_frame`)."""
-    from .simulate import noise_floor
-    from .vision import displacements
-
-    v = _volume_rows(val)
+    models' frame (for a Z-stack calibration, :func:`slmlab.virtual.sessions.zstack_frame`)."""
+    v = volume_rows(val)
     m = np.eye(3) if frame is None else np.asarray(frame, float)
     truth = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
     dt, _, _ = displacements(v, truth)
@@ -161,9 +65,7 @@ def uncertainty_coverage(model, val, share: float = 95.0, frame: np.ndarray | No
     """Share [%] of absolute errors (after removing the frame's constant offset) inside the model's
     ``share`` % intervals, per coordinate, on the run's V sequence (``frame`` as in
     :func:`volumetric_comparison`)."""
-    from scipy.stats import norm
-
-    v = _volume_rows(val)
+    v = volume_rows(val)
     w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
     m = np.eye(3) if frame is None else np.asarray(frame, float)
     e = model.reconstruct(w) - val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy() @ m.T
@@ -176,9 +78,7 @@ def uncertainty_coverage(model, val, share: float = 95.0, frame: np.ndarray | No
 def volumetric_errors(models: dict, val, frames: dict | None = None) -> dict:
     """Per sample of V: the stage Z of the position and the displacement error magnitude [µm], per model
     (``frames``: per model name, a matrix as in :func:`volumetric_comparison`)."""
-    from .vision import displacements
-
-    v = _volume_rows(val)
+    v = volume_rows(val)
     truth0 = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
     out = {}
     for name, m in models.items():
@@ -191,15 +91,12 @@ def volumetric_errors(models: dict, val, frames: dict | None = None) -> dict:
     return out
 
 
-# ----------------------------------------------------------------------------- beyond the paper (notebook 09)
 STAGE_ERRORS = ("scale_error", "lead_error_um", "straightness_um", "positioning_noise_um")
 
 
 def perfect_stage(microscope: Microscope, keep: tuple[str, ...] = ()) -> Microscope:
     """The microscope with a stage free of scale, lead, straightness and positioning errors, except those
     named in ``keep`` (its axes' skew and tilts stay: they are part of the stage frame)."""
-    from dataclasses import replace
-
     st = microscope.stage
     zero = {"scale_error": (0.0, 0.0, 0.0), "lead_error_um": 0.0, "straightness_um": (0.0, 0.0, 0.0),
             "positioning_noise_um": 0.0}
@@ -210,15 +107,12 @@ def stage_error_budget(microscope: Microscope, n_volume: int, seed: int = 1) -> 
     """What each of the stage's errors costs the default model: calibrated on Test 1 and validated on a
     volume run, with the stage perfect, with one error at a time, and with all of them. Per row: the RMS
     displacement error over the noise floor per coordinate and the 95 % intervals' coverage [%]."""
-    from .models import calibrate
-    from .simulate import simulate_set, paper_test
-
     cases = [("perfect stage", ())] + [(f"only {k}", (k,)) for k in STAGE_ERRORS] + [("all (paper preset)", STAGE_ERRORS)]
     rows = []
     for label, keep in cases:
         m = perfect_stage(microscope, keep)
         cal = simulate_set(m, paper_test(1), seed=seed)
-        val = _volume_run(m, n_volume, seed)
+        val = volume_run(m, n_volume, seed)
         model = calibrate(cal)
         t = volumetric_comparison({"direct": model}, val).set_index("model").loc["direct"]
         cov = uncertainty_coverage(model, val)
@@ -232,17 +126,14 @@ def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 
     the validation's Z range) beside the same model calibrated on Test 1's three axes, on one volume run, and
     the Soloff model alone on the same Z stack (one of the default's candidates; the default chooses between
     them by held-out planes of the stack, which cannot show the stage's systematic errors).
-    Errors are compared in the Z stack's frame (:func:`slmlab.simulate.zstack_frame`) for the Z-stack models.
+    Errors are compared in the Z stack's frame (:func:`slmlab.virtual.sessions.zstack_frame`) for the Z-stack models.
     Returns ``(table, zstack_model, val, frame)``: per model, RMS displacement error [µm] and over the floor,
     and the 95 % intervals' coverage [%]."""
-    from .models import calibrate
-    from .simulate import simulate_set, paper_test, zstack_frame, zstack_plate, zstack_session
-
     mz = microscope.replace(moving_plate=zstack_plate())
     zcal = simulate_set(mz, zstack_session(n_planes), seed=seed)
     zmodel = calibrate(zcal)
     moves = calibrate(simulate_set(microscope, paper_test(1), seed=seed))
-    val = _volume_run(microscope, n_volume, seed)
+    val = volume_run(microscope, n_volume, seed)
     frame = zstack_frame(mz)
     rows = []
     soloff = calibrate(zcal, "soloff")
@@ -263,10 +154,6 @@ def leave_one_plane_out(cal, variants: dict[str, dict]) -> pd.DataFrame:
     Z stack): for each plane, calibrate on the others with each variant's options (``{label: options}``)
     and reconstruct the left-out plane. Per plane and variant: RMS error [mm] per coordinate, mean predicted
     1σ [mm], and the share of errors inside the 95 % intervals [%]."""
-    from .direct import plate_xy
-    from .io import CalibrationSet
-    from .models import calibrate
-
     pts = cal.points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
     rows = []
     for plane in sorted(pts["position"].unique()):
@@ -324,8 +211,6 @@ def cross_validation_diff(model_a, model_b, grid: pd.DataFrame) -> pd.DataFrame:
 def subsample_positions(cal, every: int):
     """The calibration set with every ``every``-th position of each moving sequence (the first always kept),
     renumbered 1, 2, …; static sequences (``grid``) unchanged."""
-    from .io import CalibrationSet
-
     pts = cal.points
     moving = pts["sequence"].isin(["X", "Y", "Z", "V"])
     keep = ~moving | ((pts["position"] - 1) % every == 0)
@@ -339,11 +224,8 @@ def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 
     """How accuracy scales with the number of calibration positions: Test 1 thinned to every k-th position,
     each model calibrated on it and validated on one volume run. Per row: positions, model, RMS displacement
     error [µm] and over the floor per coordinate."""
-    from .models import calibrate
-    from .simulate import simulate_set, paper_test
-
     full = simulate_set(microscope, paper_test(1), seed=seed)
-    val = _volume_run(microscope, n_volume, seed)
+    val = volume_run(microscope, n_volume, seed)
     rows = []
     for k in everies:
         cal = subsample_positions(full, k)
@@ -364,11 +246,9 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
     noise floor's; returns ``frame_um`` and ``floor_um`` (per coordinate) and ``attainable_vs_floor``
     ``= √(floor² + frame²) / floor``. It ignores the stage's non-linear errors a model would also learn,
     so the true limit is higher."""
-    from .vision import displacements
-
     positions = session.stage_positions()
     cmd = np.concatenate([positions[k] for k in positions if k in ("X", "Y", "Z", "V")])
-    v = _volume_rows(val)
+    v = volume_rows(val)
     dt, _, _ = displacements(v, val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy())
     floor = volumetric_comparison({}, val).iloc[0][["X_um", "Y_um", "Z_um"]].to_numpy(float)
     rng = np.random.default_rng(seed)
@@ -379,68 +259,3 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
         errors.append(np.mean((dt @ lin[:3] - dt) ** 2, axis=0))
     frame = 1e3 * np.sqrt(np.mean(errors, axis=0))
     return {"frame_um": frame, "floor_um": floor, "attainable_vs_floor": np.sqrt(floor ** 2 + frame ** 2) / floor}
-
-
-def measure_level_offset(points: pd.DataFrame, model) -> dict:
-    """The depth of a two-level plate's second level in its frame [mm], measured from a Z stack: every
-    extracted dot seen in both views (``level`` 0 or 1) is reconstructed by ``model`` (calibrated on the first
-    level, whose z is 0), and per plane the median Z of the second level's dots less that of the first's is
-    one estimate. Planes where the second level would leave the calibrated depth range (extrapolation) are
-    left out, after a first estimate from all planes. Returns ``offset_mm`` (the median over planes),
-    ``spread_mm`` (their standard deviation), ``planes`` (per-plane values) and ``dots`` per level."""
-    both = points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
-    if "level" not in both.columns or not (both["level"] == 1).any():
-        raise ValueError("no second-level dots: extract a two-level plate (plates.moving.levels = 2)")
-    z = model.reconstruct(both[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))[:, 2]
-    both = both.assign(Z=z)
-    per = both.groupby(["position", "level"])["Z"].median().unstack("level").dropna()
-    stage = both.groupby("position")["stage_z_mm"].first().loc[per.index]
-    d = per[1] - per[0]
-    first = float(np.median(d))
-    lo, hi = float(both.loc[both["level"] == 0, "stage_z_mm"].min()), float(both.loc[both["level"] == 0, "stage_z_mm"].max())
-    inside = (stage + first >= lo) & (stage + first <= hi)
-    use = d[inside] if inside.sum() >= 2 else d
-    return {"offset_mm": float(np.median(use)), "spread_mm": float(np.std(use, ddof=1)) if len(use) > 1 else float("nan"),
-            "planes": {int(k): float(v) for k, v in use.items()},
-            "dots": {int(k): int(v) for k, v in both["level"].value_counts().sort_index().items()}}
-
-
-def disparity_recovery(microscope: Microscope, cases, seed: int = 1) -> pd.DataFrame:
-    """How much of the disparity's curvature the first reading's single pass recovers (METHOD.md §2), over
-    layouts: each case ``(positions along X, plate pitch [mm])`` is a Test 1 session with that many X
-    positions 0.1 mm apart and the 7 × 7 plate at that pitch. Per case: the ratio of the plate's width to a
-    dot's path length on the image, the single pass's ``aD`` over the joint fit's (recovered), and the
-    pooled-regression attenuation ``Var(t²)/(Var(t²) + 4·σm²·σt²)`` (predicted)."""
-    from dataclasses import replace
-
-    from .alignment import estimate_alignment, recovered_share, sequence_coordinates
-    from .distortion import estimate_distortion
-
-    rows = []
-    for n_x, pitch in cases:
-        m = replace(microscope, moving_plate=replace(microscope.moving_plate, pitch_mm=float(pitch)))
-        cal = simulate_set(m, Session(step_mm=0.1, positions=(int(n_x), 15, 16), name=f"x{n_x}"), seed=seed)
-        dist = estimate_distortion(cal.sequence("grid"))
-        align = estimate_alignment(cal, dist.apply)
-        xs = sequence_coordinates(cal, "X", dist.apply)
-        xs[["wl1", "wl2", "wr1", "wr2"]] = align.align(xs[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float))
-        r = recovered_share(xs)
-        rows.append({"positions_X": int(n_x), "pitch_mm": float(pitch),
-                     "plate_width_over_path_length": r["plate_width_over_path_length"],
-                     "recovered_share": r["recovered"], "predicted_share": r["predicted"]})
-    return pd.DataFrame(rows)
-
-
-def against_model(t5: pd.DataFrame, reference: str = "paper-m2") -> pd.DataFrame:
-    """Each model of a comparison table (:func:`comparison_table`) against ``reference``, element by element:
-    its largest error and where, the reference's largest error there, their ratio, and how many of the nine
-    elements stay within the reference's maxima."""
-    ref = t5[t5["model"] == reference].set_index("element")["max_abs_mm"]
-    rows = []
-    for model, d in t5[t5["model"] != reference].groupby("model", sort=False):
-        d = d.set_index("element")["max_abs_mm"]
-        worst = d.idxmax()
-        rows.append({"model": model, "worst_element": worst, "worst_max_abs_mm": float(d[worst]),
-                     f"{reference}_max_abs_mm_there": float(ref[worst]), "ratio": float(d[worst] / ref[worst]),
-                     f"elements_within_{reference}": int((d <= ref.reindex(d.index)).sum())})
-    return pd.DataFrame(rows)

@@ -1,6 +1,6 @@
 """Image alignment and disparity distortion correction (paper §4, Eqs 7–16, Table 2, Figs 7–8; METHOD.md §2).
 
-Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`slmlab.distortion`).
+Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`slmlab.paper.distortion`).
 
 * **Rotation α** (Eqs 7–9): along the X sequence each grid point traces a path in each view; the slope ``k`` of
   ``w2`` on ``w1`` (least squares over the positions) gives the path angle ``atan(k)``;
@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .errors import SlmlabError
-from .io import CalibrationSet
-from .linefit import group_lines, point_keys
+from ..errors import SlmlabError
+from ..io import CalibrationSet
+from ..linefit import group_lines, point_keys
 
 __all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "DisparityCorrection", "DISPARITY_METHODS",
            "fit_disparity_single_pass", "fit_disparity_joint", "path_straightness", "AlignmentResult",

@@ -1,7 +1,7 @@
 """Calibration targets that OpenCV detects itself: chessboards, circle grids and ChArUco boards.
 
 Where OpenCV has the detector, slmlab uses it (:func:`detect_board`) and only turns its output into the
-interchange format (DATA_FORMAT.md):
+interchange format:
 
 ``chessboard``
     inner corners ``rows × cols`` of a chessboard of square ``pitch_mm``: ``cv2.findChessboardCornersSB``
@@ -28,10 +28,11 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from .errors import SlmlabError
-from .extract import ImageDots, as_8bit, dot_polarity
+from ..errors import SlmlabError
+from .dots import as_8bit, dot_polarity, read_image
+from .extract import ImageDots, empty_dots_table
 
-__all__ = ["detect_board", "charuco_board", "DICTIONARIES"]
+__all__ = ["detect_board", "charuco_board", "chessboard_views", "DICTIONARIES"]
 
 DICTIONARIES = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
 
@@ -56,9 +57,7 @@ def charuco_board(spec) -> "cv2.aruco.CharucoBoard":
 
 
 def _empty(note: str) -> ImageDots:
-    from .extract import _empty_table
-
-    return ImageDots(_empty_table(), 0, 0, 0, note)
+    return ImageDots(empty_dots_table(), 0, 0, 0, note)
 
 
 def _grid_table(corners: np.ndarray, rows: int, cols: int) -> pd.DataFrame:
@@ -75,7 +74,7 @@ def _grid_table(corners: np.ndarray, rows: int, cols: int) -> pd.DataFrame:
 
 def detect_board(img: np.ndarray, spec) -> ImageDots:
     """Detect a board (``spec.pattern``: ``chessboard``, ``circles``, ``asymmetric-circles`` or
-    ``charuco``) in one image of any bit depth. Returns :class:`slmlab.extract.ImageDots`: ``frame``
+    ``charuco``) in one image of any bit depth. Returns :class:`slmlab.images.extract.ImageDots`: ``frame``
     ``'plate'`` for chessboards and symmetric grids (their rows and cols number them), ``'board'`` for
     ChArUco boards and asymmetric grids (with ``x_mm, y_mm, z_mm``); ``found`` is 0 where nothing was found."""
     img8 = as_8bit(img)
@@ -136,3 +135,24 @@ def detect_board(img: np.ndarray, spec) -> ImageDots:
         return ImageDots(t, len(t), 0, 0, "", None, "board", "the ChArUco board's own marker ids")
     raise SlmlabError(f"plates.{spec.name}.pattern {pattern!r} is not one of dots, chessboard, circles, "
                       "asymmetric-circles, charuco")
+
+
+def chessboard_views(pairs: list[tuple[str, str]], pattern=(9, 6), square: float = 1.0) -> tuple[list[dict], tuple]:
+    """Planar views from stereo chessboard images (OpenCV's sample): inner corners by
+    ``cv2.findChessboardCorners`` refined by ``cv2.cornerSubPix``; pairs where either view fails are skipped."""
+    objp = np.zeros((pattern[0] * pattern[1], 3), np.float32)
+    objp[:, :2] = np.mgrid[0:pattern[0], 0:pattern[1]].T.reshape(-1, 2) * square
+    views, size = [], None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+    for left, right in pairs:
+        pts = {}
+        for side, path in (("l", left), ("r", right)):
+            img = read_image(path)
+            size = (img.shape[1], img.shape[0])
+            ok, c = cv2.findChessboardCorners(img, pattern)
+            if not ok:
+                break
+            pts[side] = cv2.cornerSubPix(img, c, (11, 11), (-1, -1), crit).reshape(-1, 2)
+        if len(pts) == 2:
+            views.append({"sequence": "chessboard", "position": len(views) + 1, "obj": objp, **pts})
+    return views, size

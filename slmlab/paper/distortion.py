@@ -31,8 +31,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from .errors import SlmlabError
-from .linefit import group_lines
+from ..errors import SlmlabError
+from ..linefit import group_lines
+from .reference import paper_reference
 
 __all__ = ["ViewCorrection", "DistortionResult", "display_rows", "display_columns", "row_lines", "column_residuals",
            "estimate_two_step", "estimate_joint", "lattice_misfit", "quality", "estimate_distortion",
@@ -305,8 +306,6 @@ def table1(result: DistortionResult, noise_free: DistortionResult | None = None,
     """Table 1: Φ per view, ours (the chosen estimator and the paper's two-step) next to the paper's values,
     with the estimate on noise-free centres and, from the simulator's optics, the first-order values
     ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them."""
-    from .paths import paper_reference
-
     ref = paper_reference("table1")
     rows = []
     for side, name in (("l", "left"), ("r", "right")):

@@ -1,4 +1,4 @@
-"""A calibration set's images, extracted into one ``points.csv`` (DATA_FORMAT.md ``extract``).
+"""A calibration set's images, extracted into one ``points.csv`` (the command line's ``extract``).
 
 Where the images are
     ``stage.csv`` with columns ``sequence, position, stage_x_mm, stage_y_mm, stage_z_mm, left_image,
@@ -8,14 +8,14 @@ Where the images are
 
 How each plate is found
     From its entry in ``meta.json`` (:func:`plate_spec`): the ``pattern`` (``dots``, the default, found by
-    :mod:`slmlab.extract`; ``chessboard``, ``circles``, ``asymmetric-circles`` and ``charuco`` by OpenCV's own
-    detectors, :mod:`slmlab.boards`), the dots' polarity (``"dots": "dark" | "bright"``, else decided per
+    :mod:`slmlab.images.extract`; ``chessboard``, ``circles``, ``asymmetric-circles`` and ``charuco`` by OpenCV's own
+    detectors, :mod:`slmlab.images.boards`), the dots' polarity (``"dots": "dark" | "bright"``, else decided per
     image), and for two-level plates their ``level_offset_mm``.
 
 One numbering for the whole set
     The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
     ``cols`` are given and which is wholly in view is numbered by its size; a plate with markers by them (an
-    L of donuts; a square and a triangle; a frame around the origin dot: :func:`slmlab.extract.anchor_image`);
+    L of donuts; a square and a triangle; a frame around the origin dot: :mod:`slmlab.images.lattice`);
     a plate larger than the field whose markers an image does not show is **tracked** from the nearest
     anchored image of the same view (a stack moves the plate little from one position to the next). A plate
     anchored by an origin (markers) has no size: its dots are numbered from 1 over the whole set, and their
@@ -33,15 +33,19 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
-from .errors import SlmlabError
-from .extract import IMAGE_NAME, ImageDots, PlateLattice, choose_method, extract_image, read_image
-from .io import PATTERNS
+from ..errors import SlmlabError
+from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
+                  require_columns, sequence_position_stage)
+from .boards import detect_board
+from .dots import read_image
+from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image
+from .lattice import PlateLattice
 
 __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "ImagePair", "image_pairs", "extract_set", "STAGE_FILE"]
 
 STAGE_FILE = "stage.csv"
-STAGE = ["stage_x_mm", "stage_y_mm", "stage_z_mm"]
 
 
 @dataclass(frozen=True)
@@ -115,11 +119,9 @@ class ImagePair:
 # ------------------------------------------------------------------------------------------- the set's images
 def _stage_table(path: Path) -> pd.DataFrame:
     """``stage.csv``, validated like ``points.csv`` (every bad cell named by row and column)."""
-    from .io import _read_csv_text, _require_columns, _sequence_position_stage
-
-    df = _read_csv_text(path, STAGE_FILE)
-    _require_columns(df, ["sequence", "position", *STAGE], path, STAGE_FILE)
-    out = _sequence_position_stage(df, path)
+    df = read_csv_text(path, STAGE_FILE)
+    require_columns(df, ["sequence", "position", *STAGE_COLUMNS], path, STAGE_FILE)
+    out = sequence_position_stage(df, path)
     for c in ("left_image", "right_image"):
         if c in df.columns:
             out[c] = df[c].astype(str).str.strip()
@@ -161,9 +163,7 @@ def image_pairs(set_dir: str | Path) -> list[ImagePair]:
         raise SlmlabError("images/ holds no file named {sequence}_{position:03d}_{l|r}.png; or name the images "
                           "in stage.csv (left_image, right_image)", images)
     if (set_dir / "points.csv").exists():
-        from .io import read_set
-
-        stage = read_set(set_dir).points[["sequence", "position", *STAGE]]
+        stage = read_set(set_dir).points[["sequence", "position", *STAGE_COLUMNS]]
         where = set_dir / "points.csv"
     elif stage is not None:
         where = stage_file
@@ -181,7 +181,7 @@ def image_pairs(set_dir: str | Path) -> list[ImagePair]:
             raise SlmlabError(f"no stage position for sequence {seq}, position {pos} (image {next(iter(sides.values())).name})",
                               where)
         st = stage.loc[(seq, pos)]
-        pairs.append(ImagePair(seq, pos, tuple(float(st[c]) for c in STAGE), sides.get("l"), sides.get("r"), "images/"))
+        pairs.append(ImagePair(seq, pos, tuple(float(st[c]) for c in STAGE_COLUMNS), sides.get("l"), sides.get("r"), "images/"))
     return pairs
 
 
@@ -248,22 +248,17 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
     """Extract every image of a set into the rows of ``points.csv`` (module docstring).
 
     ``method``: the centre estimator of dot plates (``'moments'``, ``'ellipse'``, or ``'auto'``: chosen per
-    plate and view on its first image by :func:`slmlab.extract.choose_method`, and named in the notes).
+    plate and view on its first image by :func:`slmlab.images.extract.choose_method`, and named in the notes).
 
     Returns the points table (``POINT_COLUMNS``; plus ``x_mm, y_mm, z_mm`` for plates anchored by markers and
     ``level`` for two-level plates) and notes: how each plate's numbering was anchored, images with spurious
     blobs, views without an image. Raises :class:`SlmlabError` before anything is written.
     """
-    from tqdm import tqdm
-
-    from .boards import detect_board
-    from .io import IMAGE_COLUMNS, POINT_COLUMNS, _read_meta
-
     set_dir = Path(set_dir)
     if not set_dir.is_dir():
         raise SlmlabError("calibration set folder not found; give the folder that holds meta.json and the images",
                           set_dir)
-    meta = _read_meta(set_dir / "meta.json")
+    meta = read_meta(set_dir / "meta.json")
     pairs = image_pairs(set_dir)
     specs = {}
     for pr in pairs:
@@ -272,22 +267,32 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
             raise SlmlabError(f"sequence {pr.sequence} needs plates.{name} in meta.json", set_dir / "meta.json")
         specs[name] = plate_spec(meta, name)
     notes: list[str] = []
-    size = None
-    found: list[_Found] = []
-    todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
     for pr in pairs:
         for side, path in (("l", pr.left), ("r", pr.right)):
             if path is None:
                 notes.append(f"{pr.sequence} position {pr.position}: no {'left' if side == 'l' else 'right'} image")
+    found = _find_in_images(pairs, specs, tuple(meta["image_size_px"]), method, progress, notes)
+    _number_unanchored(found, notes)
+    known_target = _one_numbering(found, specs, notes, set_dir)
+    return _points_table(pairs, found, specs, known_target, set_dir), notes
+
+
+def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, method: str, progress, notes: list
+                    ) -> list[_Found]:
+    """Phase 1: every image read (one size for the set, the size ``meta.json`` gives) and its dots or board
+    corners found and, where the image itself allows, numbered; the centre estimator chosen per plate and view
+    on its first image where ``method`` is ``'auto'``."""
+    size = None
+    found: list[_Found] = []
+    todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
     chosen: dict[tuple[str, str], str] = {}
     for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
         img = read_image(path)
         if size is None:
             size = img.shape
-            want = tuple(meta["image_size_px"])
-            if (img.shape[1], img.shape[0]) != want:
+            if (img.shape[1], img.shape[0]) != image_size:
                 raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but meta.json's image_size_px is "
-                                  f"{want[0]} × {want[1]}; correct image_size_px", path)
+                                  f"{image_size[0]} × {image_size[1]}; correct image_size_px", path)
         elif img.shape != size:
             raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are {size[1]} × {size[0]} px; "
                               "all images of a set must have one size", path)
@@ -313,10 +318,15 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
         if dots.spurious:
             notes.append(f"{path.name}: {dots.spurious} blob(s) off the lattice dropped")
         found.append(_Found(pr, side, path, dots, spec))
+    return found
 
-    # anchor: by the image itself, else tracked from an anchored neighbour of the same view
+
+def _number_unanchored(found: list[_Found], notes: list) -> None:
+    """Phase 2: images that could not be numbered alone are tracked from an anchored neighbour of the same
+    view (:func:`_track`); how each plate's numbering was anchored goes to the notes."""
     anchored = [f for f in found if f.dots.frame is not None]
     how: dict[str, dict[str, int]] = {}
+    tracked_how = "tracked through the stack from a neighbouring image"
     for f in found:
         if f.dots.frame is not None:
             how.setdefault(f.spec.name, {}).setdefault(f.dots.how, 0)
@@ -332,9 +342,8 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
         t = f.dots.table.copy()
         t["i1"] += shift[0]
         t["i2"] += shift[1]
-        rt = ref.dots.table
         cols = ("xu", "yu") if ref.dots.frame == "origin" else ("row", "col")
-        m = _integer_map(rt, ("i1", "i2"), cols)
+        m = _integer_map(ref.dots.table, ("i1", "i2"), cols)
         if m is None:
             raise SlmlabError(f"cannot number the dots of this image: its neighbour {source} has too few dots to "
                               "track from; use a plate with markers", f.path)
@@ -345,14 +354,17 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
             if f.spec.levels == 2:
                 t["level"] = (t["xu"] % 2).astype(int)
         f.dots.table, f.dots.frame, f.dots.how = t, ref.dots.frame, f"tracked from {source}"
-        how.setdefault(f.spec.name, {}).setdefault("tracked through the stack from a neighbouring image", 0)
-        how[f.spec.name]["tracked through the stack from a neighbouring image"] += 1
+        how.setdefault(f.spec.name, {}).setdefault(tracked_how, 0)
+        how[f.spec.name][tracked_how] += 1
     for name, kinds in how.items():
         total = sum(kinds.values())
         notes.append(f"plate {name}: numbering anchored in {total} image(s) by "
                      + "; ".join(f"{k} ({v})" for k, v in kinds.items()))
 
-    # one numbering for the set (origin-anchored plates), then one row per (sequence, position, dot)
+
+def _one_numbering(found: list[_Found], specs: dict, notes: list, set_dir: Path) -> bool:
+    """Phase 3: one numbering for the set. Origin-anchored plates are numbered from 1 over all their images
+    and get their plate-frame ``x_mm, y_mm, z_mm``. Returns whether the set is a known-target set."""
     known_target = False
     for name, spec in specs.items():
         mine = [f for f in found if f.spec.name == name]
@@ -379,6 +391,12 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
                              "dots have no z_mm and are left out of calibrations until it is given")
         elif frames == {"board"}:
             known_target = True
+    return known_target
+
+
+def _points_table(pairs: list[ImagePair], found: list[_Found], specs: dict, known_target: bool, set_dir: Path
+                  ) -> pd.DataFrame:
+    """Phase 4: one row per (sequence, position, dot), both views merged on the dot's numbering."""
     extra = ["x_mm", "y_mm", "z_mm"] if known_target else []
     levels = any(s.levels == 2 for s in specs.values())
     frames_out = []
@@ -406,7 +424,7 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
             merged = merged[merged["row"].between(1, spec.rows) & merged["col"].between(1, spec.cols)]
         merged.insert(0, "sequence", pr.sequence)
         merged.insert(1, "position", pr.position)
-        for c, v in zip(STAGE, pr.stage_mm):
+        for c, v in zip(STAGE_COLUMNS, pr.stage_mm):
             merged[c] = float(v)
         cols = POINT_COLUMNS + [c for c in extra if c in merged.columns] + (["level"] if levels and "level" in merged.columns else [])
         frames_out.append(merged.sort_values(["row", "col"], kind="stable")[cols])
@@ -415,4 +433,4 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
     points = pd.concat(frames_out, ignore_index=True)
     points = points[points[IMAGE_COLUMNS].notna().any(axis=1)].reset_index(drop=True)
     points[["row", "col"]] = points[["row", "col"]].astype(int)
-    return points, notes
+    return points

@@ -1,6 +1,6 @@
 """Execute the notebooks top to bottom, each in a fresh kernel (nbclient): ``make reproduce`` and the tests.
 
-``python -m slmlab.notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
+``python -m slmlab.run_notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
 with the working directory set to the notebook's folder, and fails (exit 1) if one raises. Outputs are not written back:
 notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
 """
@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 __all__ = ["run_notebook", "main"]
@@ -17,8 +18,8 @@ __all__ = ["run_notebook", "main"]
 
 def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | None = None) -> float:
     """Execute one notebook in a fresh ``python3`` kernel; return the wall time [s]. Raises on a failing cell."""
-    import nbformat
-    from nbclient import NotebookClient
+    import nbformat  # the notebook tools: needed only here, and the package's other users never load them
+    from nbclient import NotebookClient  # (as above)
 
     path = Path(path)
     nb = nbformat.read(path, as_version=4)
@@ -51,9 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         args = args[2:]
     paths = sorted(args)
     if not paths:
-        print("usage: python -m slmlab.notebooks [--timing FILE] [--jobs N] NOTEBOOK.ipynb ...", file=sys.stderr)
+        print("usage: python -m slmlab.run_notebooks [--timing FILE] [--jobs N] NOTEBOOK.ipynb ...", file=sys.stderr)
         return 2
-    from concurrent.futures import ThreadPoolExecutor, as_completed
 
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=jobs) as pool:

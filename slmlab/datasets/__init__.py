@@ -1,0 +1,1 @@
+"""Third-party calibration data: converters into slmlab's interchange format (``converters``)."""
