@@ -25,7 +25,7 @@ from ..errors import SlmlabError
 
 __all__ = ["REGISTRY_FILE", "DataFile", "Dataset", "names", "dataset"]
 
-#: the registry (JSON), shipped inside the package
+#: the registry (JSON), shipped inside the package; read (once per path) when first needed
 REGISTRY_FILE = Path(__file__).parent / "registry.json"
 _FORMAT = "slmlab-datasets/1"
 
@@ -60,9 +60,11 @@ class Dataset:
         return sum(f.size for f in self.files)
 
 
-def _parse(raw: dict) -> dict[str, Dataset]:
+@lru_cache(maxsize=4)
+def _read(path: Path) -> dict[str, Dataset]:
+    raw = json.loads(path.read_text(encoding="utf-8"))
     if raw.get("format") != _FORMAT:
-        raise SlmlabError(f"is not a dataset registry of format {_FORMAT}", REGISTRY_FILE)
+        raise SlmlabError(f"is not a dataset registry of format {_FORMAT}", path)
     out = {}
     for name, d in raw["datasets"].items():
         files = tuple(DataFile(f["path"], int(f["size"]), f["sha256"], f["url"]) for f in d["files"])
@@ -70,9 +72,8 @@ def _parse(raw: dict) -> dict[str, Dataset]:
     return out
 
 
-@lru_cache(maxsize=1)
 def _registry() -> dict[str, Dataset]:
-    return _parse(json.loads(REGISTRY_FILE.read_text(encoding="utf-8")))
+    return _read(REGISTRY_FILE)
 
 
 def names() -> list[str]:
