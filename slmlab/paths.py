@@ -23,7 +23,7 @@ __all__ = ["REPO_ROOT", "DATA_DIR", "SHARED_DIR", "figures_dir", "notebook_size"
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = REPO_ROOT / "data"
-#: ``../shared`` beside the repository (real data, when present)
+#: ``../shared`` beside the repository; kept for compatibility: real data come from :func:`slmlab.datasets.fetch`
 SHARED_DIR = Path(os.environ.get("SLMLAB_SHARED", REPO_ROOT.parent / "shared"))
 
 
