@@ -1,5 +1,6 @@
 # slmlab: two commands for a machine that has only Python.
-#   make reproduce   set up .venv, run every notebook (full size), rewrite figures/
+#   make reproduce   set up .venv, fetch the datasets, run every notebook (full size), rewrite figures/
+#   make data        fetch the third-party datasets into the cache (SHA-256 checked); see 'python -m slmlab data list'
 #   make test        set up .venv, run the unit tests and every notebook (small size)
 #   make lab         JupyterLab on the notebooks
 PYTHON ?= python3
@@ -7,7 +8,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: reproduce test lab bench clean venv
+.PHONY: reproduce test lab bench clean venv data
 
 venv: $(STAMP)
 
@@ -19,9 +20,14 @@ $(STAMP): environment.txt pyproject.toml
 	$(PY) -m ipykernel install --sys-prefix --name python3 >/dev/null
 	touch $(STAMP)
 
+data: $(STAMP)
+	$(PY) -m slmlab data fetch
+
+# the datasets first: one missing fails here, in one line with its remedy, before any notebook runs;
 # the notebooks write into a fresh folder; only when all succeed does it replace figures/ (no stale files,
 # and a failed run leaves figures/ as it was)
 reproduce: $(STAMP)
+	$(PY) -m slmlab data fetch
 	rm -rf .figures.new && mkdir .figures.new
 	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/.figures.new $(PY) -m slmlab.run_notebooks --timing .reproduce_seconds --jobs 2 notebooks/*.ipynb
 	find figures -maxdepth 1 -type f ! -name table6_speed.md -delete

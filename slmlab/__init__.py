@@ -11,7 +11,7 @@ The package in wings (in the spirit of mrcal: modules by concept, the everyday n
 ``slmlab.paper``     the paper's method, §3–§6: distortion, alignment and disparity, Models 0–2, RA/S evaluation
 ``slmlab.models``    the vision models as plug-ins: the paper's, the pinhole baseline, direct, soloff, the default
 ``slmlab.studies``   studies end to end: the paper's tables over repeats, the workspace, extraction, real rigs
-``slmlab.datasets``  third-party real data, by name
+``slmlab.datasets``  third-party real data, fetched by name and checked (``slmlab.datasets.fetch(name)``)
 
 >>> import slmlab
 >>> cal = slmlab.simulate_set(slmlab.preset("paper"), seed=1)     # a virtual calibration set
@@ -30,6 +30,7 @@ from .virtual.microscope import CentroidNoise, Microscope, Optics, Plate, Stage,
 from .virtual.presets import PRESETS, preset
 from .virtual.sessions import PAPER_TESTS, Session, paper_test, validation_session
 from .virtual.simulate import simulate_set
+from . import datasets, images, models, paper, studies, virtual  # noqa: E402  (the wings, as slmlab.<wing>)
 
 __all__ = [
     "__version__", "SlmlabError",

@@ -18,13 +18,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .datasets import converters
+from . import datasets
+from .errors import SlmlabError
 from .explore import explore_microscope, explore_models, explore_steps
 from .images.dots import as_8bit, read_image
 from .images.extract import choose_method, extract_image
 from .io import IMAGE_COLUMNS, atomic_write_text
 from .models import calibrate
-from .outputs import SHARED_DIR
 from .virtual.presets import preset
 from .virtual.render import render_pair, render_plate, render_view
 from .virtual.sessions import paper_test, zstack_plate, zstack_session
@@ -200,16 +200,19 @@ def _bench_paper_models() -> list[BenchLine]:
 def _bench_real_rigs() -> list[BenchLine]:
     """Images as a camera writes them (16 bit, bright dots) and the stereo-PIV model."""
     lines = []
-    real = SHARED_DIR / "realdata" / converters.PIV_CHALLENGE_DIR / "Camera_01" / "E_camera_1_z_4.tif"
-    if real.exists():
+    try:
+        real = datasets.fetch("pivchallenge-case-e") / "Camera_01" / "E_camera_1_z_4.tif"
+    except SlmlabError:
+        real = None
+    if real is not None:
         img, what = read_image(real), "PIV Challenge case E, camera 1 (real, 61 dots, two levels)"
     else:  # the same kind of image, made: a rendered plate, inverted and scaled to 16 bit
         m = preset("paper")
         rendered, _ = render_plate(m, m.moving_plate, (0.0, 0.0, 0.0), seed=1)
         img = ((255 - cv2.resize(rendered, (1024, 1024), interpolation=cv2.INTER_AREA)).astype(np.uint16) * 257)
         what = "virtual 7 x 7 plate, bright dots, 16 bit (case E not present)"
-    kw = dict(dark=None, two_level=real.exists())
-    rows_cols = (None, None) if real.exists() else (7, 7)
+    kw = dict(dark=None, two_level=real is not None)
+    rows_cols = (None, None) if real is not None else (7, 7)
     method, _ = choose_method(img, *rows_cols, **kw)
     ours = best_time(lambda: extract_image(img, *rows_cols, method=method, **kw), repeat=7)
     found = len(extract_image(img, *rows_cols, method=method, **kw).table)

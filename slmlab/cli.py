@@ -1,6 +1,7 @@
 """The command line: ``python -m slmlab VERB ...`` (README, "The virtual microscope from the command line").
 
-Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``grip``, ``bench``.
+Verbs: ``simulate``, ``extract``, ``models``, ``calibrate``, ``reconstruct``, ``evaluate``, ``grip``, ``bench``,
+``data``.
 Every error a user can cause ends with exit status 2 and one line on stderr; outputs are written
 atomically.
 """
@@ -16,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from . import datasets
 from .bench import run as run_bench
 from .errors import SlmlabError
 from .gripping import grip
@@ -36,11 +38,12 @@ class _Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line on stderr and exit status 2."""
 
     def error(self, message: str):  # noqa: D401 - argparse API
-        self.exit(EXIT_USER_ERROR, f"slmlab: error: {message} (see 'python -m slmlab {self._verb()} --help')\n")
+        command = " ".join(filter(None, ["python -m slmlab", self._verb()]))
+        self.exit(EXIT_USER_ERROR, f"slmlab: error: {message} (see '{command} --help')\n")
 
     def _verb(self) -> str:
         parts = self.prog.split()
-        return parts[-1] if len(parts) > 1 and parts[-1] != "slmlab" else ""
+        return " ".join(parts[parts.index("slmlab") + 1:]) if "slmlab" in parts else ""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -89,6 +92,12 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true")
     b.add_argument("--markdown", type=Path, default=None, help="also write the table as Markdown (table6_speed.md)")
     b.add_argument("--reproduce-seconds-file", type=Path, default=None, help="a file holding make reproduce's time")
+
+    d = sub.add_parser("data", help="the third-party datasets: list them, fetch them into the cache (SHA-256 checked)")
+    dsub = d.add_subparsers(dest="data_verb", metavar="{fetch,list}", required=True, parser_class=_Parser)
+    df = dsub.add_parser("fetch", help="fetch datasets into the cache and check every file (all when none named)")
+    df.add_argument("names", nargs="*", metavar="NAME", help="dataset name (see 'python -m slmlab data list')")
+    dsub.add_parser("list", help="each dataset: files, size, whether it is cached, where it comes from")
     return p
 
 
@@ -217,8 +226,23 @@ def _bench(a) -> int:
     return run_bench(as_json=a.json, markdown_path=a.markdown, reproduce_seconds_file=a.reproduce_seconds_file)
 
 
+def _data(a) -> int:
+    if a.data_verb == "list":
+        table = datasets.status()
+        print(f"cache: {datasets.cache_dir()}")
+        print(table.drop(columns="title").to_string(index=False))
+        return 0
+    for name in a.names:
+        datasets.dataset(name)                      # every name checked before anything is fetched
+    for name in a.names or datasets.names():
+        ds = datasets.dataset(name)
+        folder = datasets.fetch(name)
+        print(f"{name}: {len(ds.files)} files, {ds.size_bytes / 1e6:.1f} MB, SHA-256 checked, in {folder}")
+    return 0
+
+
 VERBS = {"simulate": _simulate, "extract": _extract, "models": _models, "calibrate": _calibrate,
-         "reconstruct": _reconstruct, "evaluate": _evaluate, "grip": _grip, "bench": _bench}
+         "reconstruct": _reconstruct, "evaluate": _evaluate, "grip": _grip, "bench": _bench, "data": _data}
 
 
 def main(argv: list[str] | None = None) -> int:

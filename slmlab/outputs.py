@@ -21,7 +21,7 @@ __all__ = ["REPO_ROOT", "SHARED_DIR", "figures_dir", "notebook_size", "savefig",
            "table_digits", "TABLE_DIGITS"]
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-#: ``../shared`` beside the repository (real data, when present)
+#: ``../shared`` beside the repository; kept for compatibility: real data come from :func:`slmlab.datasets.fetch`
 SHARED_DIR = Path(os.environ.get("SLMLAB_SHARED", REPO_ROOT.parent / "shared"))
 
 

@@ -1,10 +1,6 @@
 import os
-from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parent.parent
-SHARED = Path(os.environ.get("SLMLAB_SHARED", REPO.parent / "shared"))
 
 
 @pytest.fixture(scope="session")
@@ -13,6 +9,28 @@ def paper_set():
     import slmlab
 
     return slmlab.simulate_set(slmlab.preset("paper"), slmlab.paper_test(1), seed=1)
+
+
+@pytest.fixture(scope="session")
+def dataset_folder():
+    """``dataset_folder(name)``: the registered dataset's folder (:func:`slmlab.datasets.fetch`, every file
+    SHA-256 checked, fetched once per session); the test is skipped, with the one-line reason, when the dataset
+    cannot be had here (no cache, no mirror, no network)."""
+    from slmlab import SlmlabError, datasets
+
+    folders = {}
+
+    def get(name: str):
+        if name not in folders:
+            try:
+                folders[name] = datasets.fetch(name)
+            except SlmlabError as exc:
+                folders[name] = exc
+        if isinstance(folders[name], SlmlabError):
+            pytest.skip(f"dataset {name} is not available: {folders[name]}")
+        return folders[name]
+
+    return get
 
 
 @pytest.fixture

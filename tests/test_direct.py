@@ -12,7 +12,6 @@ from slmlab.datasets import converters
 from slmlab.studies import workspace
 from slmlab.models.direct import LEGACY_FRAME, DirectModel
 from slmlab.models.frames import plate_xy
-from slmlab.outputs import SHARED_DIR
 from slmlab.virtual.simulate import noise_floor
 from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
 from slmlab.paper.chain import displacements
@@ -161,13 +160,27 @@ def test_the_disparity_direction_is_found_from_the_data(volume):
 
 
 # ----------------------------------------------------------------------------- the real Z stack
-PIV = SHARED_DIR / "realdata" / converters.PIV_CHALLENGE_DIR
+@pytest.fixture(scope="module")
+def piv(dataset_folder):
+    return dataset_folder("pivchallenge-case-e")
 
 
-@pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
-def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_path):
-    cal = converters.pivchallenge_set(PIV)
-    csv = pd.read_csv(PIV / "stereo_common_points.csv")
+def uvmat_common_points(folder) -> pd.DataFrame:
+    """The points both cameras picked, as the UVMAT lists give them (pixels from 1): ``X_mm, Y_mm, Z_mm,
+    u_cam1_px, v_cam1_px, u_cam3_px, v_cam3_px``, read file by file and merged on the world point."""
+    key = ["X_mm", "Y_mm", "Z_mm"]
+    cams = []
+    for cam in ("Camera_01", "Camera_03"):
+        t = pd.concat([converters.read_uvmat_points(p) for p in sorted((folder / cam).glob("img_*.xml"))])
+        t[key] = t[key].round(6)
+        n = cam[-1]
+        cams.append(t.rename(columns={"u_px": f"u_cam{n}_px", "v_px": f"v_cam{n}_px"}))
+    return cams[0].merge(cams[1], on=key)
+
+
+def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_path, piv):
+    cal = converters.pivchallenge_set(piv)
+    csv = uvmat_common_points(piv)
     assert len(cal.points) == len(csv) == 112
     assert sorted(cal.points["position"].unique()) == list(range(1, 8))
     back = slmlab.read_set(slmlab.write_set(tmp_path / "piv", cal))
@@ -177,12 +190,11 @@ def test_the_piv_challenge_point_lists_convert_to_the_interchange_format(tmp_pat
     merged = pd.DataFrame({"X_mm": xy[:, 0], "Y_mm": xy[:, 1], "Z_mm": back.points["stage_z_mm"],
                            "u_cam1_px": back.points["wl1"] + origin, "v_cam3_px": back.points["wr2"] + origin})
     joined = merged.round(6).merge(csv.round(6), on=["X_mm", "Y_mm", "Z_mm", "u_cam1_px", "v_cam3_px"])
-    assert len(joined) == 112      # every converted point is one of the CSV's, at its own X, Y, Z
+    assert len(joined) == 112      # every converted point is one of the lists' common points, at its own X, Y, Z
 
 
-@pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
-def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size():
-    cal = converters.pivchallenge_set(PIV)
+def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size(piv):
+    cal = converters.pivchallenge_set(piv)
     direct = slmlab.calibrate(cal, "direct")
     assert direct.options["mode"] == "zstack" and abs(direct.frame["direction"][1]) > 0.99  # oblique camera: rows
     lopo = workspace.leave_one_plane_out(cal, {"default": {}, "linear": {"model": "direct", "degree": 1}})

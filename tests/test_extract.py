@@ -15,8 +15,6 @@ from slmlab.studies.extraction import extraction_errors, extraction_summary
 from slmlab.images.dots import read_image
 from slmlab.virtual.render import render_plate
 
-from conftest import SHARED
-
 
 @pytest.fixture(scope="module")
 def rendered_set(tmp_path_factory):
@@ -139,13 +137,9 @@ def test_images_of_different_sizes_are_refused(rendered_set, tmp_path):
     assert r.returncode == 2 and "one size" in r.stderr and r.stderr.count("\n") == 1
 
 
-DICE = SHARED / "realdata" / "dice-calb-sys2-dot-target" / "images"
-
-
-@pytest.mark.skipif(not DICE.is_dir(), reason="real DICe dot-target images not present in ../shared/realdata")
-def test_real_dot_target_pairs_are_found_and_indexed_consistently():
+def test_real_dot_target_pairs_are_found_and_indexed_consistently(dataset_folder):
     counts = []
-    for left in sorted(DICE.glob("*_0.jpeg")):
+    for left in sorted((dataset_folder("dice-calb-sys2") / "images").glob("*_0.jpeg")):
         views = [extract_image(read_image(p), 8, 10, anchor="markers") for p in (left, left.with_name(left.name.replace("_0.", "_1.")))]
         assert all(v.note == "" for v in views), [v.note for v in views]
         m = views[0].table.merge(views[1].table, on=["row", "col"])

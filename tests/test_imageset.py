@@ -21,11 +21,6 @@ from slmlab.virtual.render import board_orientation, render_board_set, render_pl
 from slmlab.virtual.sessions import Session, zstack_frame
 from slmlab.virtual.simulate import stage_origin
 
-from conftest import SHARED
-
-REAL = SHARED / "realdata"
-PIV = REAL / converters.PIV_CHALLENGE_DIR
-
 
 def cli(*args):
     return subprocess.run([sys.executable, "-m", "slmlab", *map(str, args)], capture_output=True, text=True, timeout=300)
@@ -123,17 +118,20 @@ def test_bad_images_are_one_line_errors_and_nothing_is_written(case, tmp_path, p
 
 # ----------------------------------------------------------------------------------- the real case E images
 @pytest.fixture(scope="module")
-def case_e(tmp_path_factory):
-    if not PIV.exists():
-        pytest.skip("../shared/realdata/ (PIV Challenge case E) is not present")
-    d = converters.pivchallenge_image_set(PIV, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
+def piv(dataset_folder):
+    return dataset_folder("pivchallenge-case-e")
+
+
+@pytest.fixture(scope="module")
+def case_e(tmp_path_factory, piv):
+    d = converters.pivchallenge_image_set(piv, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
     points, notes = extract_set(d, progress=False)
     return d, points, notes
 
 
-def test_case_e_images_meet_the_extraction_targets(case_e):
+def test_case_e_images_meet_the_extraction_targets(case_e, piv):
     _, pts, notes = case_e
-    picks = converters.pivchallenge_picks(PIV, common=False)
+    picks = converters.pivchallenge_picks(piv, common=False)
     found, diffs, total = 0, [], 0
     for side, u, v in (("l", "u1_px", "v1_px"), ("r", "u2_px", "v2_px")):
         p = picks.dropna(subset=[u]).merge(pts.dropna(subset=[f"w{side}1"]), how="left",
@@ -166,9 +164,9 @@ def test_case_e_numbering_is_one_across_the_stack_and_both_views(case_e):
     assert np.allclose(pts.loc[pts["level"] == 1, "z_mm"], -3.0)
 
 
-def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case_e, tmp_path):
+def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case_e, piv, tmp_path):
     d, pts, _ = case_e
-    src = read_image(PIV / "Camera_01" / "E_camera_1_z_4.tif")
+    src = read_image(piv / "Camera_01" / "E_camera_1_z_4.tif")
     img = src.copy()
     for x, y in ((219, 721), (309, 815)):            # paint out the square and the triangle
         cv2.circle(img, (x, y), 30, 0, -1)
@@ -188,9 +186,8 @@ def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case
 
 
 # ----------------------------------------------------------------------------------- other real samples
-@pytest.mark.skipif(not (REAL / converters.DICE_DIR).exists(), reason="DICe images not present")
-def test_dice_dot_target_pairs_through_extract(tmp_path):
-    pts, notes = extract_set(converters.dice_image_set(REAL / converters.DICE_DIR, tmp_path / "dice"), progress=False)
+def test_dice_dot_target_pairs_through_extract(tmp_path, dataset_folder):
+    pts, notes = extract_set(converters.dice_image_set(dataset_folder("dice-calb-sys2"), tmp_path / "dice"), progress=False)
     assert pts["position"].nunique() == 14 and any("donut" in n for n in notes)
     for _, g in pts.dropna(subset=["wl1", "wr1"]).groupby("position"):
         assert len(g) >= 60
@@ -198,9 +195,9 @@ def test_dice_dot_target_pairs_through_extract(tmp_path):
         assert inl.mean() >= 0.95   # the same [row, col] in both views is the same dot
 
 
-@pytest.mark.skipif(not (REAL / converters.CHESSBOARD_DIR).exists(), reason="OpenCV chessboard images not present")
-def test_opencv_chessboard_pairs_through_extract(tmp_path):
-    pts, _ = extract_set(converters.chessboard_image_set(REAL / converters.CHESSBOARD_DIR, tmp_path / "c"), progress=False)
+def test_opencv_chessboard_pairs_through_extract(tmp_path, dataset_folder):
+    folder = dataset_folder("opencv-stereo-chessboard")
+    pts, _ = extract_set(converters.chessboard_image_set(folder, tmp_path / "c"), progress=False)
     counts = pts.dropna(subset=["wl1", "wr1"]).groupby("position").size()
     assert len(counts) == 13 and (counts == 54).all()
 

@@ -8,8 +8,6 @@ from slmlab.models.pinhole import VARIANTS, calibrate_stereo
 from slmlab.images.boards import chessboard_views
 from slmlab.virtual.sessions import tilted_session
 
-from conftest import SHARED
-
 
 @pytest.fixture(scope="module")
 def small_sets():
@@ -65,23 +63,17 @@ def test_tilted_plate_calibration(small_sets):
     assert np.isfinite(slmlab.evaluate(m, val).summary["rms_mm"]).all()
 
 
-CHESS = SHARED / "realdata" / "opencv-stereo-chessboard-9x6" / "images"
-DICE = SHARED / "realdata" / "dice-calb-sys2-dot-target" / "images"
-
-
-@pytest.mark.skipif(not CHESS.is_dir(), reason="OpenCV chessboard pairs not present in ../shared/realdata")
-def test_real_chessboard_stereo_rms_is_well_under_a_pixel():
-    lefts = sorted(CHESS.rglob("left*.jpg"))
+def test_real_chessboard_stereo_rms_is_well_under_a_pixel(dataset_folder):
+    lefts = sorted((dataset_folder("opencv-stereo-chessboard") / "images").glob("left*.jpg"))
     views, size = chessboard_views([(str(p), str(p).replace("left", "right")) for p in lefts])
     assert len(views) >= 10
     assert calibrate_stereo(views, size, "standard", f_guess_px=size[0]).rms_px < 0.6
 
 
-@pytest.mark.skipif(not DICE.is_dir(), reason="real DICe dot-target images not present in ../shared/realdata")
-def test_real_dot_target_stereo_rms_is_well_under_a_pixel():
+def test_real_dot_target_stereo_rms_is_well_under_a_pixel(dataset_folder):
     from slmlab.images.extract import extract_stereo_pairs
 
-    lefts = sorted(DICE.glob("*_0.jpeg"))
+    lefts = sorted((dataset_folder("dice-calb-sys2") / "images").glob("*_0.jpeg"))
     counts = extract_stereo_pairs([(p, p.with_name(p.name.replace("_0.", "_1."))) for p in lefts], 8, 10)
     views = []
     for m in counts.attrs["tables"].values():

@@ -15,10 +15,6 @@ from slmlab.models.frames import plate_xy
 from slmlab.virtual.simulate import stepped_target, target_set
 from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
 
-from conftest import SHARED
-
-PIV = SHARED / "realdata" / converters.PIV_CHALLENGE_DIR
-
 
 @pytest.fixture(scope="module")
 def perfect():
@@ -95,10 +91,9 @@ def test_a_two_level_plate_in_one_pose_calibrates_what_two_depths_allow(perfect,
     assert "1" in model.describe() or ratio[2] > 1.0   # two depths bound the degree in depth
 
 
-@pytest.mark.skipif(not PIV.exists(), reason="../shared/realdata/ (PIV Challenge case E) is not present")
-def test_on_the_real_stereo_piv_rig_the_default_is_no_worse_than_a_plain_quadratic():
+def test_on_the_real_stereo_piv_rig_the_default_is_no_worse_than_a_plain_quadratic(dataset_folder):
     """Calibrated on planes 1, 3, 5, 7 of the case E picks, checked on 2, 4, 6 (errors after one offset)."""
-    picks = converters.pivchallenge_set(PIV)
+    picks = converters.pivchallenge_set(dataset_folder("pivchallenge-case-e"))
     pts = picks.points
     cal = slmlab.CalibrationSet(pts[pts["position"] % 2 == 1].copy(), picks.meta)
     chk = pts[pts["position"] % 2 == 0]

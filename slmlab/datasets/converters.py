@@ -1,4 +1,4 @@
-"""Third-party calibration data in slmlab's interchange format (``../shared/realdata/``).
+"""Third-party calibration data in slmlab's interchange format (folders from :func:`slmlab.datasets.fetch`).
 
 The 4th International PIV Challenge's case E (Kähler et al., Exp. Fluids 57:97, 2016; images and point lists
 via fluidimage) is a real stereo rig imaging a two-level dot plate (15 mm pitch, bright dots on black, a
