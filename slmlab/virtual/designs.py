@@ -160,7 +160,7 @@ def simulate_rig_set(rig, session: Session, seed: int = 0) -> CalibrationSet:
         n_pos, n_dot = len(commanded), len(i)
         key = {"sequence": np.full(n_pos * n_dot, seq), "position": np.repeat(np.arange(1, n_pos + 1), n_dot),
                "row": np.tile(i, n_pos), "col": np.tile(j, n_pos)}
-        stage_cols = np.repeat(commanded, n_dot, axis=0)
+        stage_cols = np.repeat(commanded, n_dot, axis=0) + 0.0  # (no "-0" in the file)
         frames.append(pd.DataFrame({**key, **{c: stage_cols[:, k] for k, c in enumerate(("stage_x_mm", "stage_y_mm",
                                                                                           "stage_z_mm"))},
                                     **{c: w[:, k] for k, c in enumerate(IMAGE_COLUMNS)}}))
@@ -244,6 +244,7 @@ def simulate_design(rig, design: str, seed: int = 0) -> CalibrationSet:
         cal = target_rig_set(rig, charuco_corners(squares, square), _z(np.linspace(-d, d, 5)), seed=seed,
                              plate=plate, dot_diameter_mm=square)
     cal.meta["simulator"]["design"] = design
+    cal.meta["source"] += f" (design {design})"
     return cal
 
 

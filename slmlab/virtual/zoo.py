@@ -141,7 +141,8 @@ def physics_checks(rig, n_points: int = 2000, seed: int = 0) -> dict:
 # --------------------------------------------------------------------------------------------- models
 def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validation: int = 1500) -> pd.DataFrame:
     """Per coordinate RMS error [µm] on a held-out validation set (:func:`validation_set`) of each model
-    calibrated on ``design``, of plain polynomials of degree :data:`POLY_DEGREES` and of the true model (the
+    calibrated on ``design`` (``pinhole-f``: the pinhole model started from the rig's true focal length), of
+    plain polynomials of degree :data:`POLY_DEGREES` and of the true model (the
     floor), in the design's frame net of one common offset; ``error``: why a model could not calibrate."""
     cal = simulate_design(rig, design, seed=seed)
     val = validation_set(rig, cal, n_validation, seed=seed + 1000)
@@ -151,12 +152,16 @@ def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validati
     origin = np.asarray(val.meta["simulator"]["stage_origin_mm"])
     floor = rig.microscope_to_stage(rig.triangulate(w), origin) @ frame.T
     rows = [("floor", floor, "")]
-    for name in models:
+    cam = rig.camera("l")
+    runs = [(name, name, {}) for name in models]
+    if "pinhole" in models:  # the pinhole model again, told the true focal length as a start (a user knows the lens)
+        runs.append(("pinhole-f", "pinhole", {"f_guess_px": float(cam.x0[2] / cam.pixel_mm)}))
+    for label, name, options in runs:
         try:
-            model = calibrate(cal, name)
-            rows.append((name, model.reconstruct(w), model.describe()))
+            model = calibrate(cal, name, **options)
+            rows.append((label, model.reconstruct(w), model.describe()))
         except SlmlabError as exc:
-            rows.append((name, None, f"error: {exc}"))
+            rows.append((label, None, f"error: {exc}"))
     for degree in POLY_DEGREES:
         rows.append((f"poly{degree}", fit_plain_polynomial(cal, degree)(w), ""))
     out = []
