@@ -24,10 +24,11 @@ from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from ..models import calibrate
 from ..realrig import rms_after_offset
-from .designs import design_frame, simulate_design, validation_set
+from .designs import DESIGNS, design_frame, simulate_design, validation_set
+from .rigs import refraction_invariant
 
 __all__ = ["MODELS", "POLY_DEGREES", "monomials", "fit_plain_polynomial", "fermat_crossings", "physics_checks",
-           "compare_models", "ratio_table"]
+           "compare_models", "run_zoo", "ratio_table"]
 
 MODELS = ("auto", "direct", "soloff", "quadratic", "pinhole")
 POLY_DEGREES = (1, 2, 3, 4)
@@ -103,8 +104,6 @@ def fermat_crossings(rig, point_mm: np.ndarray, side: str) -> np.ndarray:
 
 def _snell_crossings(rig, point_mm, side) -> np.ndarray:
     """The same crossings from the rig's own refraction (the transverse invariant)."""
-    from .rigs import refraction_invariant
-
     c = rig.camera(side).centre
     p = np.asarray(point_mm, float)
     rho = np.hypot(*(c[:2] - p[:2]))
@@ -170,6 +169,21 @@ def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validati
         out.append({"rig": rig.preset, "design": design, "model": name, "X_um": e[0], "Y_um": e[1], "Z_um": e[2],
                     "note": note})
     return pd.DataFrame(out)
+
+
+def run_zoo(rigs, designs=tuple(DESIGNS), *, seed: int = 1, models=MODELS, n_validation: int = 1500) -> pd.DataFrame:
+    """:func:`compare_models` for every rig and design (the pinhole model only where it applies: the
+    stage-sequence design), one table; ``seconds`` the time each design took (minutes on two cores)."""
+    import time
+
+    frames = []
+    for rig in rigs:
+        for design in designs:
+            start = time.perf_counter()
+            use = models if design == "stage-sequences" else tuple(m for m in models if m != "pinhole")
+            df = compare_models(rig, design, seed=seed, models=use, n_validation=n_validation)
+            frames.append(df.assign(seconds=time.perf_counter() - start))
+    return pd.concat(frames, ignore_index=True)
 
 
 def ratio_table(results: pd.DataFrame) -> pd.DataFrame:
