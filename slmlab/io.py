@@ -91,7 +91,7 @@ class CalibrationSet:
     @property
     def sequences(self) -> list[str]:
         """Sequence labels in order of first appearance."""
-        return list(dict.fromkeys(self.points["sequence"]))
+        return [str(s) for s in pd.unique(self.points["sequence"])]
 
     def sequence(self, name: str) -> pd.DataFrame:
         """The rows of one sequence (an empty frame if absent)."""

@@ -32,7 +32,8 @@ import numpy as np
 from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from .base import Model, register
-from .folds import row_folds
+from .direct import DEGREE_ROWS
+from .folds import row_folds, thin_dots
 from .frames import dot_labels, world_positions
 from .reference import quadratic_features
 
@@ -338,12 +339,16 @@ def _held_out(pts, world, w, options) -> dict:
     """Held-out RMS [mm] per coordinate of each degree option, on crossed folds of planes and dots
     (:func:`slmlab.models.folds.row_folds`); errors net of one common offset."""
     folds = row_folds(pts, "target")
+    if len(pts) > DEGREE_ROWS:  # the degrees are chosen on every k-th dot: a ranking, not the fit, needs them
+        keep = thin_dots(pts, DEGREE_ROWS)
+        folds = [(tr & keep, te & keep) for tr, te in folds]
+    labels = dot_labels(pts)
     out = {}
     for d in options:
         errs = []
         for train, held in folds:
             try:
-                p = fit_soloff(world[train], w[train], *d, dots=dot_labels(pts)[train])
+                p = fit_soloff(world[train], w[train], *d, dots=labels[train])
             except SlmlabError:
                 errs = None
                 break

@@ -24,40 +24,45 @@ from .realrigs import rms_after_offset
 
 __all__ = ["MODELS", "POLY_DEGREES", "compare_models", "run_zoo", "ratio_table"]
 
-MODELS = ("auto", "direct", "soloff", "quadratic", "pinhole")
+MODELS = ("auto", "pinhole")
 POLY_DEGREES = DEGREES
 
 
 def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validation: int = 1500) -> pd.DataFrame:
-    """Per coordinate RMS error [µm] on a held-out validation set (:func:`validation_set`) of each model
-    calibrated on ``design`` (``pinhole-f``: the pinhole model started from the rig's true focal length), of
-    plain polynomials of degree :data:`POLY_DEGREES` and of the true model (the
-    floor), in the design's frame net of one common offset; ``error``: why a model could not calibrate."""
+    """Per coordinate RMS error [µm] on a held-out validation set inside the calibrated volume
+    (:func:`slmlab.virtual.designs.validation_set`) of the default model calibrated on ``design``, of each of its
+    candidates as fitted on the whole set (the direct and Soloff models, the plain polynomials of degree 1–4:
+    ``polynomial-d``), of the other ``models`` named (``pinhole-f``: the pinhole model started from the rig's
+    true focal length) and of the true model on the same noisy centres (``floor``), in the design's frame net
+    of one common offset. ``note``: the model's settings, or why it could not calibrate; ``chosen_for``: the
+    coordinates the default took from that candidate."""
     cal = simulate_design(rig, design, seed=seed)
     val = validation_set(rig, cal, n_validation, seed=seed + 1000)
     frame = design_frame(rig, design)
     w = val.points[IMAGE_COLUMNS].to_numpy(float)
     truth = val.truth[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) @ frame.T
     origin = np.asarray(val.meta["simulator"]["stage_origin_mm"])
-    floor = rig.microscope_to_stage(rig.triangulate(w), origin) @ frame.T
-    rows = [("floor", floor, "")]
-    cam = rig.camera("l")
-    runs = [(name, name, {}) for name in models]
+    rows = [("floor", rig.microscope_to_stage(rig.triangulate(w), origin) @ frame.T, "", "")]
+    default = calibrate(cal)
+    rows.append(("auto", default.reconstruct(w), default.describe(), ""))
+    for label, m in getattr(default, "candidates", {}).items():
+        chosen = "".join(c for c, k in zip("XYZ", default.choice) if k == label)
+        rows.append((label, m.reconstruct(w), m.describe(), chosen))
+    runs = [(name, name, {}) for name in models if name != "auto"]
     if "pinhole" in models:  # the pinhole model again, told the true focal length as a start (a user knows the lens)
+        cam = rig.camera("l")
         runs.append(("pinhole-f", "pinhole", {"f_guess_px": float(cam.x0[2] / cam.pixel_mm)}))
     for label, name, options in runs:
         try:
             model = calibrate(cal, name, **options)
-            rows.append((label, model.reconstruct(w), model.describe()))
+            rows.append((label, model.reconstruct(w), model.describe(), ""))
         except SlmlabError as exc:
-            rows.append((label, None, f"error: {exc}"))
-    for degree in POLY_DEGREES:
-        rows.append((f"poly{degree}", calibrate(cal, "polynomial", degree=degree).reconstruct(w), ""))
+            rows.append((label, None, f"error: {exc.reason}", ""))
     out = []
-    for name, p, note in rows:
+    for name, p, note, chosen in rows:
         e = 1e3 * rms_after_offset(p - truth) if p is not None else np.full(3, np.nan)
         out.append({"rig": rig.preset, "design": design, "model": name, "X_um": e[0], "Y_um": e[1], "Z_um": e[2],
-                    "note": note})
+                    "note": note, "chosen_for": chosen})
     return pd.DataFrame(out)
 
 

@@ -67,7 +67,7 @@ from .microscope import CentroidNoise, Plate, Stage
 from .microscope import from_dict as microscope_from_dict
 
 __all__ = ["DOF_BLUR_PX", "WATER_INDEX", "RANGES", "SENSORS", "ViewErrors", "Camera", "StereoRig", "GreenoughRig",
-           "StereoDicRig", "StereoPivRig", "RIG_CLASSES", "RIGS", "make_rig", "random_rig", "rig_from_dict",
+           "StereoDicRig", "StereoPivRig", "RIG_CLASSES", "RIGS", "make_rig", "random_rig", "rig_by_name", "rig_from_dict",
            "refraction_invariant", "look_at", "sized_plate", "with_plates"]
 
 #: blur radius [px] at the edge of a rig's depth of field (where the dot finder's noise reaches at_dof_edge_px)
@@ -807,6 +807,16 @@ def make_rig(name: str, **changes):
         raise SlmlabError(f"unknown rig {name!r}; choose one of {', '.join(RIGS)}")
     rig = RIGS[name][0]()
     return replace(rig, **changes) if changes else rig
+
+
+def rig_by_name(name: str):
+    """A preset rig (:data:`RIGS`), or ``"KIND:SEED"``: a rig of that kind drawn at random (:func:`random_rig`)."""
+    kind, sep, seed = name.partition(":")
+    if not sep:
+        return make_rig(name)
+    if not seed.strip().isdigit():
+        raise SlmlabError(f"rig {name!r}: give KIND:SEED with a whole-number seed, e.g. stereo-piv:7")
+    return random_rig(kind, int(seed))
 
 
 # --------------------------------------------------------------------------------------------- random rigs
