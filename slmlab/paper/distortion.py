@@ -1,4 +1,4 @@
-"""Image distortion correction (paper §3, Eqs 1–6, Table 1, Figs 4–6; METHOD.md §1).
+"""Image distortion correction (paper §3, Eqs 1–6, Table 1, Figs 4–6).
 
 Input: one stereo pair of the 27 × 29 plate (the ``grid`` sequence), rows roughly along ``w1``. Per view:
 
@@ -8,7 +8,8 @@ Input: one stereo pair of the 27 × 29 plate (the ``grid`` sequence), rows rough
   fitting error ``E = (k_j·w2' + b_j) − w1'`` of all columns is fitted by one quadratic
   ``E ≈ a·w2'² + b·w2' + c``; then ``w1'' = w1' + a·w2'² + b·w2' + c``, ``w2'' = w2'``.
 
-``Φ = (λ, a, b, c)`` per view. Two estimators (METHOD.md §1 decision):
+``Φ = (λ, a, b, c)`` per view, "estimated by nonlinear optimization" in the paper, which does not say against
+what. Two estimators (our decision; README, "The method in our words"):
 
 ``paper-two-step``
     λ from the row lines: a row ``w2 = k_i·w1 + b_i`` becomes, to first order, a line of slope
@@ -318,16 +319,21 @@ def estimate_distortion(grid: pd.DataFrame, methods=("paper-two-step", "joint"))
 
 
 def table1(result: DistortionResult, noise_free: DistortionResult | None = None, microscope=None) -> pd.DataFrame:
-    """Table 1: Φ per view, ours (the chosen estimator and the paper's two-step) next to the paper's values,
-    with the estimate on noise-free centres and, from the simulator's optics, the first-order values
-    ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them."""
+    """Table 1: Φ per view with its unit, ours (the chosen estimator and the paper's two-step) next to the
+    paper's values, with the estimate on noise-free centres and, from the simulator's optics, the first-order
+    values ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them. The paper prints a fifth value per view
+    without a symbol: it is the row ``unlabelled``, the paper's value only."""
     ref = paper_reference("table1")
+    units = {"lambda": "1/px", "a": "1/px", "b": "-", "c": "px", "unlabelled": "?"}
     rows = []
     for side, name in (("l", "left"), ("r", "right")):
-        for par, attr in (("lambda", "lam"), ("a", "a"), ("b", "b"), ("c", "c")):
-            row = {"view": name, "parameter": par, "paper": ref[name][par],
-                   "ours": getattr(result.view(side), attr),
-                   "ours_two_step": getattr(result.estimates["paper-two-step"][side], attr)}
+        for par, attr in (("lambda", "lam"), ("a", "a"), ("b", "b"), ("c", "c"), ("unlabelled", None)):
+            row = {"view": name, "parameter": par, "unit": units[par], "paper": ref[name][par]}
+            if attr is None:
+                rows.append(row)
+                continue
+            row.update({"ours": getattr(result.view(side), attr),
+                        "ours_two_step": getattr(result.estimates["paper-two-step"][side], attr)})
             if noise_free is not None:
                 row["noise_free"] = getattr(noise_free.view(side), attr)
             if microscope is not None:
