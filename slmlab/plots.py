@@ -663,8 +663,8 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
 
 def plot_recovered_share(table, ax=None):
     """The share of the disparity's curvature the single pass recovers against the ratio of the plate's width
-    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression formula of
-    METHOD.md §2)."""
+    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression attenuation of
+    :func:`slmlab.paper.alignment.recovered_share`)."""
     ax = _ax(ax)
     t = table.sort_values("plate_width_over_path_length")
     ax.plot(t["plate_width_over_path_length"], t["recovered_share"], "o", label="single pass / joint fit (measured)")

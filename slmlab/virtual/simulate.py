@@ -158,7 +158,7 @@ def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_
     ``len(steps_mm)`` heights ``steps_mm`` [mm] in a knight's-move pattern (step ``(row + 2·col) mod n``),
     so that height does not follow ``x`` or ``y`` (a staircase across the field would confound them, and
     one pose could not tell depth from position). Returns ``row, col, x_mm, y_mm, z_mm`` in the target's
-    frame (the plate convention of DATA_FORMAT.md for ``x, y``)."""
+    frame (the plate convention of README, "The format", for ``x, y``)."""
     i, j = np.meshgrid(np.arange(1, rows + 1), np.arange(1, cols + 1), indexing="ij")
     i, j = i.ravel(), j.ravel()
     band = (i + 2 * j) % len(steps_mm)
@@ -168,7 +168,7 @@ def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_
 
 def target_set(microscope: Microscope, target: "pd.DataFrame", stage_mm, *, seed: int = 0, sequence: str = "K",
                dot_diameter_mm: float = 0.1) -> CalibrationSet:
-    """A known-target calibration set (DATA_FORMAT.md): the dots of ``target`` (``row, col, x_mm, y_mm, z_mm``
+    """A known-target calibration set (README, "The format"): the dots of ``target`` (``row, col, x_mm, y_mm, z_mm``
     in the target's frame, its axes along the stage's) imaged at the commanded stage positions ``stage_mm``
     ``(k, 3)`` [mm] (one row for a single pose), with the stage's errors and the dot finder's noise; the
     target's origin is at the field's centre, in focus, at stage zero. ``truth`` holds the true centres and
