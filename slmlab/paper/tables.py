@@ -12,10 +12,11 @@ import pandas as pd
 from ..io import IMAGE_COLUMNS
 from .alignment import sequence_coordinates
 from .chain import displacements
-from .evaluation import ELEMENTS, Evaluation
+from .evaluation import ELEMENTS, REQUIRED_INTERVAL, REQUIRED_S_PERCENT, RESIDUAL_INTERVALS_MM, Evaluation
 from .reference import paper_reference
 
-__all__ = ["TABLE4_NAMES", "UNITS", "table2", "table3", "table4", "headline_precision", "depth_error_profile",
+__all__ = ["TABLE4_NAMES", "UNITS", "table2", "table3", "table4", "headline_precision", "image_track_rates",
+           "s_against_paper", "depth_error_profile",
            "comparison_table",
            "z_calibration_samples", "against_model"]
 
@@ -101,6 +102,54 @@ def headline_precision(ev: Evaluation, share: float = 95.0) -> dict:
     sequences: the paper's headline (0.01 / 0.01 / 0.015 mm) in our terms."""
     res = ev.residuals
     return {c: float(np.percentile(np.abs(res[f"E_{c}"]), share)) for c in "XYZ"}
+
+
+def image_track_rates(cal) -> pd.DataFrame:
+    """How the dots move in each image as the stage moves (the paper's Fig 9b, Fig 11 in numbers): per axis
+    sequence and view, the rate of ``w1`` and of ``w2`` per mm of the commanded move along the sequence's
+    axis [px/mm] (one slope for all dots, each dot about its own mean) and the direction of the path
+    ``atan2(Δw2, Δw1)`` [degree]."""
+    rows = []
+    for seq in "XYZ":
+        df = cal.sequence(seq)
+        if df.empty:
+            continue
+        t = df[f"stage_{seq.lower()}_mm"].to_numpy(float)
+        dot = df["row"].astype(str) + "," + df["col"].astype(str)
+        t = t - pd.Series(t).groupby(dot.to_numpy()).transform("mean").to_numpy()
+        for side in "lr":
+            rate = []
+            for axis in "12":
+                w = df[f"w{side}{axis}"].to_numpy(float)
+                w = w - pd.Series(w).groupby(dot.to_numpy()).transform("mean").to_numpy()
+                ok = np.isfinite(w) & np.isfinite(t)
+                rate.append(float(np.sum(t[ok] * w[ok]) / np.sum(t[ok] ** 2)))
+            rows.append({"sequence": seq, "view": "left" if side == "l" else "right", "dw1_px_per_mm": rate[0],
+                         "dw2_px_per_mm": rate[1], "direction_deg": float(np.degrees(np.arctan2(rate[1], rate[0])))})
+    return pd.DataFrame(rows)
+
+
+def s_against_paper(s: pd.DataFrame, reference: dict) -> pd.DataFrame:
+    """Our S coefficients [%] beside the values the paper reports (``reference``: ``{element: {interval:
+    percent}}``, as in ``paper_reference("fig12_model0_S_percent")``), with the difference in points, and
+    for each element whether it meets the paper's requirement (S ≥ 95 % at RA3 for an X or Y component, at
+    RA5 for Z): ours from our S there; the paper's where its reported values decide it (S ≥ 95 % at the
+    required interval or a smaller one passes, S < 95 % there or at a larger one fails), else empty."""
+    order = list(RESIDUAL_INTERVALS_MM)
+    rows = []
+    for el, d in reference.items():
+        if el.startswith("_") or not isinstance(d, dict):
+            continue
+        req = REQUIRED_INTERVAL[el[1]]
+        k = order.index(req)
+        passes = [True for ra, v in d.items() if order.index(ra) <= k and v >= REQUIRED_S_PERCENT]
+        passes += [False for ra, v in d.items() if order.index(ra) >= k and v < REQUIRED_S_PERCENT]
+        for ra, v in d.items():
+            rows.append({"element": el, "interval": ra, "ours_percent": float(s.loc[el, ra]), "paper_percent": v,
+                         "difference_points": float(s.loc[el, ra]) - v, "required_interval": req,
+                         "ours_passes": bool(s.loc[el, req] >= REQUIRED_S_PERCENT),
+                         "paper_passes": passes[0] if passes else None})
+    return pd.DataFrame(rows)
 
 
 def depth_error_profile(ev: Evaluation, pitch_mm: float, *, sequence: str = "Z", component: str = "Z") -> pd.DataFrame:
