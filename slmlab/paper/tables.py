@@ -97,13 +97,6 @@ def table4(fits: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def headline_precision(ev: Evaluation, share: float = 95.0) -> dict:
-    """The half-width [mm] of the interval holding ``share`` % of each component's residuals over the three
-    sequences: the paper's headline (0.01 / 0.01 / 0.015 mm) in our terms."""
-    res = ev.residuals
-    return {c: float(np.percentile(np.abs(res[f"E_{c}"]), share)) for c in "XYZ"}
-
-
 def image_track_rates(cal) -> pd.DataFrame:
     """How the dots move in each image as the stage moves (the paper's Fig 9b, Fig 11 in numbers): per axis
     sequence and view, the rate of ``w1`` and of ``w2`` per mm of the commanded move along the sequence's
@@ -169,6 +162,13 @@ def depth_error_profile(ev: Evaluation, pitch_mm: float, *, sequence: str = "Z",
         rows.append({"displacement_mm": float(d), "mean_um": float(np.mean(e)), "spread_um": float(np.std(e)),
                      "max_abs_um": float(np.max(np.abs(e))), "across_plate_um_per_mm": float(slope)})
     return pd.DataFrame(rows)
+
+
+def headline_precision(ev: Evaluation, share: float = 95.0) -> dict:
+    """The half-width [mm] of the interval holding ``share`` % of each component's residuals over the three
+    sequences: the paper's headline (0.01 / 0.01 / 0.015 mm) in our terms."""
+    res = ev.residuals
+    return {c: float(np.percentile(np.abs(res[f"E_{c}"]), share)) for c in "XYZ"}
 
 
 def comparison_table(evaluations: dict[str, Evaluation]) -> pd.DataFrame:
