@@ -37,5 +37,5 @@ def check(t: Tables, size: str) -> None:
         claim(t2.loc[p, "ours_std_over_runs"] < t2.loc[p, "paper_pm"] / 10, name, p, "and far above our spread over runs")
     for p in ("aD", "bD", "cD_px"):
         ours = t2.loc[p, "ours_std_over_runs"] / abs(t2.loc[p, "ours_mean"])
-        claim(ours < t2.loc[p, "paper_pm"] / abs(t2.loc[p, "paper"]) / 5, name, p,
-              "our spread over runs is far below the paper's ± (relative)")
+        claim(ours < t2.loc[p, "paper_pm"] / abs(t2.loc[p, "paper"]), name, p,
+              "our spread over runs is below the paper's ± (relative)")
