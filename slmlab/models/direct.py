@@ -46,7 +46,7 @@ user can declare its uncertainty from the stage's datasheet as ``stage_scale_sig
 * Outliers (mismatched or misindexed dots) are down-weighted by iteratively reweighted least squares (Huber
   weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
 * Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
-  defocus, METHOD.md §7), estimated from the scatter within positions; the coefficients' covariance (which
+  defocus), estimated from the scatter within positions; the coefficients' covariance (which
   carries the stage's random errors through the generalised least squares); and the scale uncertainty of
   each axis (the plate's for X and Y with ``length_reference="plate"``, the declared ``stage_scale_sigma``
   otherwise) times the distance from the frame's reference.

@@ -8,7 +8,7 @@ microscopes, Caron et al., *SoftwareX* 23:101440, 2023):
 
 in world coordinates centred and scaled over the calibration set. The four polynomials (two per camera)
 are fitted by least squares on dots whose world position is known: a Z stack of a plate of known pitch
-(stage ``Z`` plus the plate's lattice), or a known target (stage plus ``x_mm, y_mm, z_mm``, DATA_FORMAT.md).
+(stage ``Z`` plus the plate's lattice), or a known target (stage plus ``x_mm, y_mm, z_mm``; README, "The format").
 The fit goes in the direction in which the errors are: the world positions are exact, the image
 coordinates noisy, so the least-squares fit is unbiased (a map from image to world, fitted the other way,
 regresses on noisy variables).

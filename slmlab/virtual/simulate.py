@@ -159,7 +159,7 @@ def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_
     ``len(steps_mm)`` heights ``steps_mm`` [mm] in a knight's-move pattern (step ``(row + 2·col) mod n``),
     so that height does not follow ``x`` or ``y`` (a staircase across the field would confound them, and
     one pose could not tell depth from position). Returns ``row, col, x_mm, y_mm, z_mm`` in the target's
-    frame (the plate convention of DATA_FORMAT.md for ``x, y``)."""
+    frame (the plate convention of README, "The format", for ``x, y``)."""
     i, j = np.meshgrid(np.arange(1, rows + 1), np.arange(1, cols + 1), indexing="ij")
     i, j = i.ravel(), j.ravel()
     band = (i + 2 * j) % len(steps_mm)
