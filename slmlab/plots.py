@@ -676,3 +676,22 @@ def plot_recovered_share(table, ax=None):
     ax.set_ylim(0, 1.05)
     ax.legend(fontsize=7)
     return ax
+
+
+def plot_ratio_grid(ratios, key: str, ax=None, *, limit: float = 1.0, title: str = "", vmax: float = 3.0):
+    """One rig × design × coordinate grid of a ratio (``ratios``: :func:`slmlab.studies.zoo.ratio_table`;
+    ``key``: ``"vs_floor"``, ``"vs_polynomial"`` or ``"vs_candidates"``), each cell coloured on a log scale
+    from 1/``vmax`` to ``vmax`` and labelled with its value; cells above ``limit`` are outlined."""
+    ax = _ax(ax)
+    labels = [f"{r} · {d}" for r, d in zip(ratios["rig"], ratios["design"])]
+    values = ratios[[f"{c}_{key}" for c in "XYZ"]].to_numpy(float)
+    ax.imshow(np.log(np.clip(values, 1 / vmax, vmax)), cmap="RdYlGn_r", vmin=-np.log(vmax), vmax=np.log(vmax),
+              aspect="auto")
+    for (i, j), v in np.ndenumerate(values):
+        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6)
+        if v > limit * (1 + 1e-9):
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=1.2, edgecolor="k"))
+    ax.set_xticks(range(3), ["X", "Y", "Z"])
+    ax.set_yticks(range(len(labels)), labels, fontsize=6)
+    ax.set_title(title, fontsize=9)
+    return ax
