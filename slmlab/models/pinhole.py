@@ -65,7 +65,9 @@ class StereoPinhole:
 
     def triangulate(self, w: np.ndarray) -> np.ndarray:
         """Left-camera-frame points ``(n, 3)`` of image quadruples ``(n, 4)`` [px]."""
-        w = np.asarray(w, float)
+        w = np.asarray(w, float).reshape(-1, 4)
+        if not len(w):  # OpenCV returns None for no points
+            return np.empty((0, 3))
         ul = cv2.undistortPoints(w[:, None, 0:2], self.K1, self.d1).reshape(-1, 2)
         ur = cv2.undistortPoints(w[:, None, 2:4], self.K2, self.d2).reshape(-1, 2)
         p1 = np.hstack([np.eye(3), np.zeros((3, 1))])
@@ -76,14 +78,21 @@ class StereoPinhole:
     def as_dict(self) -> dict:
         return {"K1": self.K1.tolist(), "d1": self.d1.ravel().tolist(), "K2": self.K2.tolist(),
                 "d2": self.d2.ravel().tolist(), "R": self.R.tolist(), "T": self.T.ravel().tolist(),
-                "rms_px": self.rms_px, "variant": self.variant, "f_std_px": list(self.f_std_px),
+                "rms_px": self.rms_px, "variant": self.variant, "f_std_px": _json_std(self.f_std_px),
                 "stereo_option": self.stereo_option}
 
     @classmethod
     def from_dict(cls, d: dict) -> "StereoPinhole":
         a = lambda k: np.asarray(d[k], float)  # noqa: E731
         return cls(a("K1"), a("d1"), a("K2"), a("d2"), a("R"), a("T"), float(d["rms_px"]), str(d["variant"]),
-                   tuple(d.get("f_std_px", (np.nan, np.nan))), str(d.get("stereo_option", "")))
+                   tuple(np.nan if v is None else float(v) for v in d.get("f_std_px", (None, None))),
+                   str(d.get("stereo_option", "")))
+
+
+def _json_std(std) -> list:
+    """Standard deviations for a model file: ``None`` (JSON null) where OpenCV's covariance is singular (the
+    views do not determine the parameter: a telecentric view, for one)."""
+    return [float(v) if np.isfinite(v) else None for v in std]
 
 
 def plate_views(cal: CalibrationSet, sequences=("X", "Y", "Z", "T"), max_views: int | None = 24) -> list[dict]:
@@ -173,8 +182,9 @@ def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: st
 
 def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affine"):
     """The map ``stage = A · camera + t`` fitted on the axis sequences' displacements (``affine``: any 3 × 3
-    ``A``, absorbing the stage's skew and scale errors; ``rigid``: a rotation). ``t`` puts the X sequence's
-    first plate centre at its commanded stage position (an arbitrary but fixed origin)."""
+    ``A``, absorbing the stage's skew and scale errors; ``rigid``: a rotation). ``t`` puts the plate centre seen at
+    the X sequence's first position (:func:`_origin_rows`) at its commanded stage position (an arbitrary but
+    fixed origin)."""
     if kind not in STAGE_MAPS:
         raise SlmlabError(f"unknown stage map {kind!r}; use one of {', '.join(STAGE_MAPS)}")
     dps, das = [], []
@@ -196,11 +206,22 @@ def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affin
     else:
         u, _, vt = np.linalg.svd(dp.T @ da)
         a = (u @ np.diag([1, 1, np.sign(np.linalg.det(u @ vt))]) @ vt).T
-    x1 = cal.sequence("X")
-    x1 = x1[(x1["position"] == x1["position"].min()) & x1[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+    x1 = _origin_rows(cal)
     centre = stereo.triangulate(x1[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)).mean(axis=0)
     t = x1[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].to_numpy(float)[0] - a @ centre
     return a, t
+
+
+def _origin_rows(cal: CalibrationSet) -> pd.DataFrame:
+    """The rows that fix the stage map's origin: the first position of the X sequence (else Y, else Z) with
+    dots seen in both images (the plate may be out of view at a sequence's first positions)."""
+    for seq in ("X", "Y", "Z"):
+        df = cal.sequence(seq)
+        df = df[df[["wl1", "wl2", "wr1", "wr2"]].notna().all(axis=1)]
+        if not df.empty:
+            return df[df["position"] == df["position"].min()]
+    raise SlmlabError("no X, Y or Z position has a dot seen in both images; the pinhole model needs stage moves "
+                      "of a plate in view", cal.path)
 
 
 def _held_back_error(cal: CalibrationSet, variant: str, f_guess: float) -> float:
@@ -219,7 +240,7 @@ def _held_back_error(cal: CalibrationSet, variant: str, f_guess: float) -> float
         p = stereo.triangulate(df[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)) @ a.T
         dp, da, _ = displacements(df, p)
         errs.append(dp - da)
-    return float(np.sqrt(np.mean(np.vstack(errs) ** 2)))
+    return float(np.sqrt(np.mean(np.vstack(errs) ** 2))) if errs else float("inf")
 
 
 @register
@@ -258,19 +279,22 @@ class PinholeModel(Model):
                 for v in VARIANTS:
                     try:
                         scores[v] = _held_back_error(cal, v, f_guess)
-                    except cv2.error:
+                    except (cv2.error, SlmlabError):
                         scores[v] = float("inf")
-                variant = min(scores, key=scores.get)
+                finite = {k: v for k, v in scores.items() if np.isfinite(v)}
+                variant = min(finite, key=finite.get) if finite else "standard"
         stereo = calibrate_stereo(plate_views(cal, views_from), cal.image_size_px, variant, f_guess_px=f_guess,
                                   fix_focal=fix_focal)
         a, t = fit_stage_map(cal, stereo, stage_map)
         return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": list(views_from),
                                           "fix_focal": fix_focal, "f_guess_px": f_guess},
-                   calibration={"held_back_rms_mm": scores, "stereo_rms_px": stereo.rms_px,
+                   calibration={"held_back_rms_mm": {k: (v if np.isfinite(v) else None) for k, v in scores.items()},
+                                "stereo_rms_px": stereo.rms_px,
                                 "stereo_option": stereo.stereo_option,
                                 "focal_px": [float(stereo.K1[0, 0]), float(stereo.K2[0, 0])],
-                                "focal_std_px": list(stereo.f_std_px),
-                                "focal_relative_std": [float(s / stereo.K1[0, 0]) for s in stereo.f_std_px]})
+                                "focal_std_px": _json_std(stereo.f_std_px),
+                                "focal_relative_std": _json_std(np.divide(stereo.f_std_px,
+                                                                          [stereo.K1[0, 0], stereo.K2[0, 0]]))})
 
     def reconstruct(self, w: np.ndarray) -> np.ndarray:
         return self.stereo.triangulate(np.atleast_2d(w)) @ self.a.T + self.t
