@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import slmlab
-from slmlab.models.pinhole import VARIANTS, calibrate_stereo
+from slmlab.models.pinhole import VARIANTS, calibrate_stereo, orthogonal_map
 from slmlab.images.boards import chessboard_views
 from slmlab.virtual.sessions import tilted_session
 
@@ -46,12 +46,27 @@ def test_the_paper_finding_holds_for_x_motion_in_depth(small_sets):
     assert p.loc["XZ", "rms_mm"] > 3 * q.loc["XZ", "rms_mm"]
 
 
-def test_a_rigid_stage_map_cannot_absorb_the_depth_scale(small_sets):
+def test_a_rigid_stage_map_cannot_absorb_the_depth_scale_but_reads_a_mirror_image_the_right_way_round(small_sets):
+    """The virtual microscope's image is a mirror image of the stage (its axes run along +x, +y seen from
+    above), so the rigid camera-to-stage map is a reflection; a rotation forced on it read Y backwards (YY
+    errors of twice the Y travel)."""
     cal, val = small_sets
     kw = dict(variant="standard", views_from=("X", "Y", "Z"))
     affine = slmlab.evaluate(slmlab.calibrate(cal, "pinhole", stage_map="affine", **kw), val).summary.set_index("element")
-    rigid = slmlab.evaluate(slmlab.calibrate(cal, "pinhole", stage_map="rigid", **kw), val).summary.set_index("element")
+    rigid_model = slmlab.calibrate(cal, "pinhole", stage_map="rigid", **kw)
+    rigid = slmlab.evaluate(rigid_model, val).summary.set_index("element")
     assert rigid.loc["ZZ", "rms_mm"] > 3 * affine.loc["ZZ", "rms_mm"]
+    assert np.linalg.det(rigid_model.a) == pytest.approx(-1.0)
+    y_travel = np.ptp(val.sequence("Y")["stage_y_mm"])
+    assert rigid.loc["YY", "max_abs_mm"] < 0.01 * y_travel, rigid.loc["YY"]
+
+
+def test_the_orthogonal_map_is_a_rotation_or_a_reflection_whichever_fits():
+    rng = np.random.default_rng(0)
+    src = rng.normal(size=(50, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    for a in (q * np.sign(np.linalg.det(q)), -q * np.sign(np.linalg.det(q))):   # det +1, then det -1
+        np.testing.assert_allclose(orthogonal_map(src, src @ a.T + 1e-9 * rng.normal(size=src.shape)), a, atol=1e-6)
 
 
 def test_tilted_plate_calibration(small_sets):

@@ -35,7 +35,7 @@ from .base import Model, one_thread, register
 from .frames import check_axes
 
 __all__ = ["VARIANTS", "STAGE_MAPS", "StereoPinhole", "plate_views", "calibrate_stereo", "fit_stage_map",
-           "PinholeModel", "views_table"]
+           "orthogonal_map", "PinholeModel", "views_table"]
 
 VARIANTS = {
     "standard": 0,
@@ -182,7 +182,8 @@ def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: st
 
 def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affine"):
     """The map ``stage = A · camera + t`` fitted on the axis sequences' displacements (``affine``: any 3 × 3
-    ``A``, absorbing the stage's skew and scale errors; ``rigid``: a rotation). ``t`` puts the plate centre seen at
+    ``A``, absorbing the stage's skew and scale errors; ``rigid``: an orthogonal ``A``, a rotation or a
+    reflection, whichever fits: :func:`orthogonal_map`). ``t`` puts the plate centre seen at
     the X sequence's first position (:func:`_origin_rows`) at its commanded stage position (an arbitrary but
     fixed origin)."""
     if kind not in STAGE_MAPS:
@@ -201,15 +202,20 @@ def fit_stage_map(cal: CalibrationSet, stereo: StereoPinhole, kind: str = "affin
         raise SlmlabError("the pinhole model needs X, Y or Z sequences (stage moves) to map the cameras to the stage")
     dp, da = np.vstack(dps), np.vstack(das)
     check_axes(da, "moves", cal.path)
-    if kind == "affine":
-        a = np.linalg.lstsq(dp, da, rcond=None)[0].T
-    else:
-        u, _, vt = np.linalg.svd(dp.T @ da)
-        a = (u @ np.diag([1, 1, np.sign(np.linalg.det(u @ vt))]) @ vt).T
+    a = np.linalg.lstsq(dp, da, rcond=None)[0].T if kind == "affine" else orthogonal_map(dp, da)
     x1 = _origin_rows(cal)
     centre = stereo.triangulate(x1[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)).mean(axis=0)
     t = x1[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].to_numpy(float)[0] - a @ centre
     return a, t
+
+
+def orthogonal_map(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """The orthogonal 3 × 3 ``A`` with ``dst ≈ src · Aᵀ`` in least squares (``src, dst`` ``(n, 3)``): the
+    orthogonal Procrustes solution ``(U Vᵀ)ᵀ`` of ``srcᵀ dst = U Σ Vᵀ``, a rotation or a reflection, whichever
+    fits. A mirrored image makes the camera frame a mirror image of the stage's; a rotation forced on it
+    (Kabsch's ``det = +1``) turns its least determined axis backwards."""
+    u, _, vt = np.linalg.svd(np.asarray(src, float).T @ np.asarray(dst, float))
+    return (u @ vt).T
 
 
 def _origin_rows(cal: CalibrationSet) -> pd.DataFrame:
