@@ -201,6 +201,7 @@ def draw_models(state: dict, fig) -> None:
     res, a = state["residuals"], state["interval_mm"]
     art = getattr(fig, "_slmlab_artists", None)
     if art is None:
+        fig.subplots_adjust(hspace=0.8, wspace=0.3, bottom=0.09)
         gs = fig.add_gridspec(3, 4)
         art = {"panels": {}, "bars": {}}
         for r, seq in enumerate("XYZ"):
@@ -209,15 +210,16 @@ def draw_models(state: dict, fig) -> None:
                 line, = ax.plot([], [], ",", color="tab:blue")
                 hi = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
                 lo = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
-                ax.set_title(f"E{seq}{comp} [µm]", fontsize=8)
-                ax.tick_params(labelsize=6, labelleft=(c == 0))
+                ax.set_title(f"E$_{{{seq},{comp}}}$ [µm]", fontsize=8)
+                ax.tick_params(labelsize=6)  # every panel its own scale, so every panel its own labels
+                ax.set_xlabel(f"Δ{seq} [mm]", fontsize=7, labelpad=1)
                 ax.xaxis.set_major_locator(MaxNLocator(3))
                 ax.yaxis.set_major_locator(MaxNLocator(4))
                 art["panels"][seq + comp] = (ax, line, hi, lo)
             ax = fig.add_subplot(gs[r, 3])
             bars = ax.bar(range(3), [0, 0, 0], color=["tab:red", "tab:green", "tab:blue"])
             ax.axhline(95, color="0.4", ls="--", lw=0.8)
-            ax.set_xticks(range(3), [f"S{seq}{c}" for c in "XYZ"], fontsize=7)
+            ax.set_xticks(range(3), [f"S$_{{{seq},{c}}}$" for c in "XYZ"], fontsize=7)
             ax.set_ylim(0, 105)
             ax.tick_params(labelsize=6)
             art["bars"][seq] = (ax, bars)
@@ -252,7 +254,7 @@ def explore_models(**defaults):
         "interval": W.ToggleButtons(options=list(RESIDUAL_INTERVALS_MM), value=defaults.get("interval", "RA3"),
                                     description="interval"),
     }
-    return _box(controls, model_state, draw_models, _figure(9.5, 5.2), "The paper's models on a validation run")
+    return _box(controls, model_state, draw_models, _figure(9.5, 6.0), "The paper's models on a validation run")
 
 
 # ------------------------------------------------------------------------------------------ 3: the step study

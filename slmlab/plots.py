@@ -444,16 +444,21 @@ def plot_trajectory(trajectory_mm, target_mm, ax=None):
 
 
 def plot_volumetric_errors(errors: dict, ax=None):
-    """Displacement error magnitude [µm] against the depth of the validation positions, one series per
-    model (``errors``: name → DataFrame with ``Z_mm`` and ``error_um``), log scale."""
-    ax = _ax(ax)
-    for name, d in errors.items():
-        ax.plot(d["Z_mm"], d["error_um"], ".", ms=2, label=name, alpha=0.6)
-    ax.set_yscale("log")
-    ax.set_xlabel("stage Z of the validation position [mm]")
-    ax.set_ylabel("|displacement error| [µm]")
-    ax.legend(fontsize=7, markerscale=4)
-    ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
+    """Displacement error magnitude [µm] over the validation positions, one box per model (``errors``: name →
+    DataFrame with ``error_um``, as :func:`slmlab.studies.workspace.volumetric_errors` returns; first at the
+    top): the box holds the middle half, the whiskers 5–95 %, the line the median; log scale."""
+    if ax is None:
+        _, ax = new_figure(width_in=8.0, height_in=0.45 * len(errors) + 1.2)
+    names = list(errors)
+    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], vert=False, whis=(5, 95), widths=0.6,
+               flierprops={"marker": ".", "ms": 2, "alpha": 0.4}, medianprops={"color": "k"})
+    ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("|displacement error| [µm]")
+    ax.grid(axis="x", which="both", color="0.9", lw=0.5)
+    ax.set_title("Errors over the whole workspace (random stage positions; box: middle half, whiskers: 5–95 %)",
+                 fontsize=9)
     return ax
 
 
@@ -515,13 +520,13 @@ def plot_leave_one_plane_out(table, axes=None):
         _, axes = new_figure(1, 3, width_in=9.5, height_in=3.2, sharex=True)
     for ax, c in zip(axes, "XYZ"):
         for label, d in table.groupby("model", sort=False):
-            ax.plot(d["Z_mm"], 1e3 * d[f"E{c}_mm"], "o-", ms=3, label=f"{label}: RMS error")
+            ax.plot(d["Z_mm"], d[f"E{c}_um"], "o-", ms=3, label=f"{label}: RMS error")
         first = table[table["model"] == table["model"].iloc[0]]
-        ax.plot(first["Z_mm"], 1e3 * first[f"s{c}_mm"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
+        ax.plot(first["Z_mm"], first[f"s{c}_um"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
         ax.set_xlabel("left-out plane Z [mm]")
         ax.set_title(c, fontsize=10)
         ax.set_ylim(bottom=0)
-    axes[0].set_ylabel("µm")
+    axes[0].set_ylabel("left-out plane [µm]")
     axes[0].legend(fontsize=7)
     return axes
 
@@ -588,8 +593,10 @@ def plot_level_map(image, table, ax=None, *, title: str = "", reduce: int = 2):
 
 def plot_model_comparison(table, ax=None, *, reference: str | None = None, title: str = ""):
     """RMS error [µm] per coordinate of each model (a row of ``table``: ``model, X_um, Y_um, Z_um``), one group
-    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group."""
-    ax = _ax(ax)
+    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group; the
+    legend beside the axes, where it hides no bar."""
+    if ax is None:
+        _, ax = new_figure(width_in=9.5, height_in=4.0)
     n = len(table)
     width = 0.8 / n
     for i, (_, row) in enumerate(table.iterrows()):
@@ -602,7 +609,7 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
     ax.set_xticks(range(3), ["X", "Y", "Z"])
     ax.set_ylabel("RMS error after one offset [µm]")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return ax
 
 
