@@ -20,7 +20,7 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
            "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
-           "plot_model_comparison", "plot_recovered_share"]
+           "plot_model_comparison", "plot_recovered_share", "plot_numbering", "plot_point_uncertainty"]
 
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
@@ -498,8 +498,8 @@ def plot_accuracy_vs_positions(table, axes=None):
     for ax, c in zip(axes, "XYZ"):
         for (case, model), d in table.groupby(["case", "model"], sort=False):
             d = d.sort_values("positions")
-            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "--", ms=3,
-                    marker="o" if model == "direct" else ("s" if "paper" in case else "x"), label=f"{model}, {case}")
+            ax.plot(d["positions"], d[f"{c}_vs_floor"], ls="-" if model == "direct" else "--", ms=3,
+                    marker="o" if model == "direct" else ("x" if "perfect" in case else "s"), label=f"{model}, {case}")
         ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
@@ -627,4 +627,49 @@ def plot_recovered_share(table, ax=None):
     ax.set_ylabel("share of the curvature recovered")
     ax.set_ylim(0, 1.05)
     ax.legend(fontsize=7)
+    return ax
+
+
+# ------------------------------------------------------------------------------------------ your microscope (notebook 12)
+def plot_numbering(image, table, ax=None, *, title: str = "", every: int = 1):
+    """An image, zoomed on the extracted dots, with the dots marked and labelled ``row,col`` (every ``every``-th
+    row and column), the first row and column drawn as arrows from dot ``[1, 1]``: the numbering to check by
+    eye. ``table`` has ``row, col, w1, w2`` [px]."""
+    ax = _ax(ax)
+    lo, hi = np.percentile(image, [1, 99.5])
+    ax.imshow(image, cmap="gray", vmin=lo, vmax=hi)
+    ax.plot(table["w1"], table["w2"], "o", ms=5, mfc="none", mec="tab:orange", mew=1.0)
+    shown = table[((table["row"] - 1) % every == 0) & ((table["col"] - 1) % every == 0)]
+    for _, r in shown.iterrows():
+        ax.annotate(f"{int(r['row'])},{int(r['col'])}", (r["w1"], r["w2"]), xytext=(9, 9), textcoords="offset points",
+                    fontsize=7, color="navy", bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})
+    first = table.set_index(["row", "col"])
+    if (1, 1) in first.index:
+        o = first.loc[(1, 1), ["w1", "w2"]].to_numpy(float)
+        for key, colour, label in (((1, 2), "tab:red", "along a row (col + 1)"), ((2, 1), "tab:cyan", "along a column (row + 1)")):
+            if key in first.index:
+                d = first.loc[key, ["w1", "w2"]].to_numpy(float) - o
+                ax.annotate("", o + 1.8 * d, o, arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
+                ax.plot([], [], "-", color=colour, label=label)
+        ax.plot(*o, "o", ms=11, mfc="none", mec="tab:red", mew=1.5, label="dot [1, 1]")
+        ax.legend(fontsize=7, loc="lower right")
+    span = max(np.ptp(table["w1"]), np.ptp(table["w2"]), 1.0)
+    ax.set_xlim(table["w1"].min() - 0.12 * span, table["w1"].max() + 0.12 * span)  # the plate, not the whole image
+    ax.set_ylim(table["w2"].max() + 0.12 * span, table["w2"].min() - 0.12 * span)
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    return ax
+
+
+def plot_point_uncertainty(points, ax=None):
+    """Per-point 1σ [µm] of reconstructed points (``reconstruct``'s ``sX_mm, sY_mm, sZ_mm``) against their
+    reconstructed depth ``Z_mm`` [mm], one colour per coordinate."""
+    ax = _ax(ax)
+    for c, colour in zip("XYZ", ("tab:red", "tab:green", "tab:blue")):
+        ax.plot(points["Z_mm"], 1e3 * points[f"s{c}_mm"], ".", ms=2, color=colour, label=f"σ{c}")
+    ax.set_yscale("log")
+    ax.set_xlabel("reconstructed Z [mm]")
+    ax.set_ylabel("predicted 1σ per point [µm]")
+    ax.legend(fontsize=8, markerscale=4)
     return ax

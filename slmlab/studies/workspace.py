@@ -26,7 +26,7 @@ __all__ = ["volume_rows", "volume_run", "volumetric_comparison", "uncertainty_co
            "STAGE_ERRORS", "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out",
            "leave_one_plane_out_summary",
            "workspace_grid", "cross_validation_diff", "cross_validation_summary", "subsample_positions", "accuracy_vs_positions",
-           "commanded_frame_limit"]
+           "commanded_frame_limit", "reconstruction_against_truth"]
 
 
 def volume_rows(val) -> pd.DataFrame:
@@ -290,3 +290,22 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
         errors.append(np.mean((dt @ lin[:3] - dt) ** 2, axis=0))
     frame = 1e3 * np.sqrt(np.mean(errors, axis=0))
     return {"frame_um": frame, "floor_um": floor, "attainable_vs_floor": np.sqrt(floor ** 2 + frame ** 2) / floor}
+
+
+def reconstruction_against_truth(reconstructed: pd.DataFrame, truth: pd.DataFrame, share: float = 95.0) -> pd.DataFrame:
+    """Points as ``reconstruct`` writes them (``X_mm, Y_mm, Z_mm`` and the 1σ ``sX_mm, sY_mm, sZ_mm``) against a
+    simulated set's truth (``truth.csv``'s ``X_mm, Y_mm, Z_mm``), matched on ``sequence, position, row, col``.
+    Per coordinate: points, RMS error after one common offset (the model's frame origin) [µm], mean predicted
+    1σ [µm], and the share of errors inside the ``share`` % intervals [%]."""
+    key = ["sequence", "position", "row", "col"]
+    m = reconstructed.dropna(subset=["X_mm", "Y_mm", "Z_mm"]).merge(truth[key + ["X_mm", "Y_mm", "Z_mm"]], on=key,
+                                                                     suffixes=("", "_true"))
+    z = norm.ppf(0.5 + share / 200)
+    rows = []
+    for c in "XYZ":
+        e = (m[f"{c}_mm"] - m[f"{c}_mm_true"]).to_numpy()
+        e = e - e.mean()
+        sig = m[f"s{c}_mm"].to_numpy()
+        rows.append({"coordinate": c, "points": len(m), "rms_error_um": 1e3 * float(np.sqrt(np.mean(e ** 2))),
+                     "mean_sigma_um": 1e3 * float(np.mean(sig)), f"inside_{share:g}_percent": float(100 * np.mean(np.abs(e) <= z * sig))})
+    return pd.DataFrame(rows)
