@@ -450,7 +450,7 @@ def plot_volumetric_errors(errors: dict, ax=None):
     if ax is None:
         _, ax = new_figure(width_in=8.0, height_in=0.45 * len(errors) + 1.2)
     names = list(errors)
-    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], vert=False, whis=(5, 95), widths=0.6,
+    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], orientation="horizontal", whis=(5, 95), widths=0.6,
                flierprops={"marker": ".", "ms": 2, "alpha": 0.4}, medianprops={"color": "k"})
     ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
     ax.invert_yaxis()
