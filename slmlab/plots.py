@@ -7,6 +7,7 @@ and returns the Axes. Names follow the paper's figures.
 from __future__ import annotations
 
 import cv2
+import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Polygon, Rectangle
@@ -22,6 +23,7 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
            "plot_model_comparison", "plot_recovered_share", "plot_numbering", "plot_point_uncertainty"]
 
+MPL_VERSION = tuple(int(p) for p in matplotlib.__version__.split(".")[:2])
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
 
@@ -450,7 +452,8 @@ def plot_volumetric_errors(errors: dict, ax=None):
     if ax is None:
         _, ax = new_figure(width_in=8.0, height_in=0.45 * len(errors) + 1.2)
     names = list(errors)
-    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], orientation="horizontal", whis=(5, 95), widths=0.6,
+    horizontal = {"orientation": "horizontal"} if MPL_VERSION >= (3, 10) else {"vert": False}  # renamed in 3.10
+    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], **horizontal, whis=(5, 95), widths=0.6,
                flierprops={"marker": ".", "ms": 2, "alpha": 0.4}, medianprops={"color": "k"})
     ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
     ax.invert_yaxis()
