@@ -22,6 +22,9 @@ def check(tables: Tables, size: str) -> None:
     rigid = tables.row(verdict, model="pinhole (stage views, rigid)")
     claim(rigid["worst_max_abs_um"] > stage["worst_max_abs_um"], verdict, "pinhole (stage views, rigid)",
           "a rigid camera-to-stage map (the pinhole's own metric scale) is worse than the affine one")
+    zz = tables.value("ext06_model_comparison", "trend_um_per_mm", model="pinhole (stage views, rigid)", element="ZZ")
+    claim(abs(zz) > 100, "ext06_model_comparison", "pinhole (stage views, rigid), ZZ",
+          f"the pinhole's own depth scale is wrong by more than 10 % ({zz / 10:+.0f} %)")
 
     comparison = "ext06_model_comparison"
     m2 = tables(comparison)
