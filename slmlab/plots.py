@@ -458,10 +458,9 @@ def plot_volumetric_errors(errors: dict, ax=None):
     ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
     ax.invert_yaxis()
     ax.set_xscale("log")
-    ax.set_xlabel("|displacement error| [µm]")
+    ax.set_xlabel("|displacement error| [µm]   (box: the middle half; whiskers: 5–95 %)")
     ax.grid(axis="x", which="both", color="0.9", lw=0.5)
-    ax.set_title("Errors over the whole workspace (random stage positions; box: middle half, whiskers: 5–95 %)",
-                 fontsize=9)
+    ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
     return ax
 
 
@@ -520,7 +519,7 @@ def plot_leave_one_plane_out(table, axes=None):
     """Real Z stack, leave one plane out: RMS error [µm] of the left-out plane per coordinate, per variant
     (solid), and the default model's mean predicted 1σ (dashed)."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.2, sharex=True)
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.7, sharex=True)
     for ax, c in zip(axes, "XYZ"):
         for label, d in table.groupby("model", sort=False):
             ax.plot(d["Z_mm"], d[f"E{c}_um"], "o-", ms=3, label=f"{label}: RMS error")
@@ -530,7 +529,8 @@ def plot_leave_one_plane_out(table, axes=None):
         ax.set_title(c, fontsize=10)
         ax.set_ylim(bottom=0)
     axes[0].set_ylabel("left-out plane [µm]")
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()   # one legend under the panels, over no line
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 3), fontsize=7)
     return axes
 
 
