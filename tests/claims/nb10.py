@@ -44,8 +44,8 @@ def _case_e(tables: Tables) -> None:
     linear = alt.loc["linear (the form of the paper's initial model)"]
     claim(all(linear[f"{c}_vs_reference"] > 3 for c in XYZ), "ext10_alternate_planes", "linear",
           "a linear map is several times the quadratic's error in every coordinate")
-    claim(alt.loc["direct, 3 variables", "X_vs_reference"] > 1.5, "ext10_alternate_planes", "direct, 3 variables",
-          "the fourth image coordinate matters on this rig")
+    claim(all(alt.loc["direct", f"{c}_vs_reference"] < 1.5 for c in XYZ), "ext10_alternate_planes", "direct",
+          "the direct model's own choice is within 1.5 x the quadratic in every coordinate")
     # the default against the plain quadratic: not met today (the notebook says so); within 10 % of it
     for name in ("ext10_alternate_planes", "ext10_leave_one_plane_out"):
         d = tables.row(name, model="default (auto)")
