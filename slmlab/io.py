@@ -91,7 +91,7 @@ class CalibrationSet:
     @property
     def sequences(self) -> list[str]:
         """Sequence labels in order of first appearance."""
-        return list(dict.fromkeys(self.points["sequence"]))
+        return [str(s) for s in pd.unique(self.points["sequence"])]
 
     def sequence(self, name: str) -> pd.DataFrame:
         """The rows of one sequence (an empty frame if absent)."""
@@ -182,7 +182,7 @@ def json_text(obj) -> str:
 def read_csv_text(path: Path, what: str) -> pd.DataFrame:
     """Read a CSV file as strings, turning every way it can be unreadable into a SlmlabError."""
     if not path.exists():
-        raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see DATA_FORMAT.md)", path)
+        raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see README, 'The format')", path)
     if path.is_dir():
         raise SlmlabError(f"is a folder, but {what} must be a CSV file", path)
     raw = path.read_bytes()
@@ -301,7 +301,7 @@ def read_points(path: str | os.PathLike) -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------- sets
 def read_meta(path: Path) -> dict:
     if not path.exists():
-        raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see DATA_FORMAT.md)", path)
+        raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see README, 'The format')", path)
     if path.is_dir():
         raise SlmlabError("is a folder, but meta.json must be a JSON file", path)
     try:

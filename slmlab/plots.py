@@ -10,9 +10,11 @@ import cv2
 import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
+import pandas as pd
 from matplotlib.patches import Circle, Polygon, Rectangle
 
 from .io import CalibrationSet
+from .outputs import table_digits
 from .virtual.microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
@@ -38,6 +40,17 @@ def _ax(ax):
     if ax is None:
         _, ax = new_figure()
     return ax
+
+
+def _as_drawn(values) -> np.ndarray:
+    """Numbers as a figure draws them: to the digits a table carries (:func:`slmlab.outputs.table_digits`).
+
+    Another machine computes the same quantities to within their last bits (its CPU's ``exp``, its BLAS
+    kernels); drawn at full precision, a point can then move by a fraction of a pixel and change the
+    anti-aliasing of a few pixels, so the PNG is no longer byte-stable. Four significant digits are far finer
+    than a pixel of any figure here and far coarser than those last bits."""
+    v = np.asarray(values, dtype=float)
+    return table_digits(pd.DataFrame({"v": v.ravel()}))["v"].to_numpy().reshape(v.shape)
 
 
 def plot_cmo_geometry(microscope: Microscope, ax=None, *, exaggerate_z: float = 1.0, show_dof: bool = True):
@@ -133,33 +146,61 @@ def plot_stage_sequences(cal: CalibrationSet, ax=None, *, sequences=("X", "Y", "
     return ax
 
 
-def plot_image_tracks(cal: CalibrationSet, axes=None, *, sequences=("X", "Y", "Z"), every: int = 1):
-    """Image-plane tracks of the dots along the axis sequences, left and right view side by side.
+def plot_image_tracks(cal: CalibrationSet, axes=None, *, sequences=("X", "Y", "Z"), every: int = 1,
+                      depth_sequence: str = "Z"):
+    """Image-plane tracks of the dots along the axis sequences (paper Fig 9b, Fig 11), left and right view.
 
-    Each dot's path over the positions of a sequence is a line; position 1 is marked. ``every`` thins the
-    dots drawn (1: all 49).
-    """
+    Top row: each dot's path over the positions of the lateral sequences (``sequences`` but
+    ``depth_sequence``), the whole image; position 1 marked. Bottom row: the ``depth_sequence`` alone, zoomed
+    on the plate, each path an arrow from position 1 to the last position: the two views' dots move in
+    opposite directions along ``w1`` as depth changes (the disparity), which the lateral tracks would hide at
+    full-image scale. ``every`` thins the dots drawn (1: all 49)."""
     if axes is None:
-        _, axes = new_figure(1, 2, width_in=9.0, height_in=4.4, sharex=True, sharey=True)
+        _, axes = new_figure(2, 2, width_in=9.0, height_in=8.6, height_ratios=[1.35, 1])
     width, height = cal.image_size_px
-    for ax, (side, c1, c2) in zip(axes, (("l", "wl1", "wl2"), ("r", "wr1", "wr2"))):
+    depth = cal.sequence(depth_sequence) if depth_sequence in sequences else cal.sequence(depth_sequence).iloc[:0]
+    for c, (side, c1, c2) in enumerate((("l", "wl1", "wl2"), ("r", "wr1", "wr2"))):
+        name = "left" if side == "l" else "right"
+        top, bottom = axes[0, c], axes[1, c]
         for s in sequences:
-            df = cal.sequence(s)
-            if df.empty:
+            if s == depth_sequence:
                 continue
-            keys = df[["row", "col"]].drop_duplicates().to_numpy()[::every]
-            for n, (i, j) in enumerate(keys):
-                g = df[(df["row"] == i) & (df["col"] == j)].sort_values("position")
-                ax.plot(g[c1], g[c2], "-", lw=0.6, color=SEQUENCE_COLOURS[s], label=f"{s} sequence" if n == 0 else None)
-                ax.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=2, color="k")
-        ax.set_xlim(0, width)
-        ax.set_ylim(height, 0)
-        ax.set_aspect("equal")
-        ax.set_xlabel("w1 [px]")
-        ax.set_title(f"{'left' if side == 'l' else 'right'} image", fontsize=10)
-    axes[0].set_ylabel("w2 [px]")
-    axes[0].legend(fontsize=7, loc="lower left")
+            for n, (_, g) in enumerate(_tracks(cal.sequence(s), every)):
+                top.plot(g[c1], g[c2], "-", lw=0.6, color=SEQUENCE_COLOURS[s], label=f"{s} sequence" if n == 0 else None)
+                top.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=2, color="k")
+        top.set_xlim(0, width)
+        top.set_ylim(height, 0)
+        top.set_aspect("equal")
+        top.set_xlabel("w1 [px]")
+        top.set_ylabel("w2 [px]")
+        top.set_title(f"({'ab'[c]}) {name} image: lateral sequences", fontsize=10)
+        if top.get_legend_handles_labels()[0]:
+            top.legend(fontsize=7, loc="lower left")
+        for n, (_, g) in enumerate(_tracks(depth, every)):
+            bottom.annotate("", xy=(g[c1].iloc[-1], g[c2].iloc[-1]), xytext=(g[c1].iloc[0], g[c2].iloc[0]),
+                            arrowprops=dict(arrowstyle="->", color=SEQUENCE_COLOURS.get(depth_sequence, "k"), lw=0.9))
+            bottom.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=3, color="k")
+        bottom.set_title(f"({'cd'[c]}) {name} image, {depth_sequence} sequence: first (dot) → last position", fontsize=10)
+        bottom.set_xlabel("w1 [px]")
+        bottom.set_ylabel("w2 [px]")
+    if len(depth):
+        w1 = depth[["wl1", "wr1"]].to_numpy(float)
+        w2 = depth[["wl2", "wr2"]].to_numpy(float)
+        pad = 0.06 * (np.nanmax(w1) - np.nanmin(w1))
+        for ax in axes[1]:
+            ax.set_xlim(np.nanmin(w1) - pad, np.nanmax(w1) + pad)
+            ax.set_ylim(np.nanmax(w2) + pad, np.nanmin(w2) - pad)
+            ax.set_aspect("equal")
     return axes
+
+
+def _tracks(df, every: int):
+    """Each dot's rows of a sequence, in position order: ``(row, col), rows`` for every ``every``-th dot."""
+    if df.empty:
+        return []
+    keys = df[["row", "col"]].drop_duplicates().to_numpy()[::every]
+    groups = dict(tuple(df.sort_values("position").groupby(["row", "col"])))
+    return [((i, j), groups[(i, j)]) for i, j in keys]
 
 
 def plot_depth_response(responses: dict, axes=None):
@@ -197,13 +238,13 @@ def plot_error_vs_defocus(by_depth, ax=None, *, depth_of_field_mm: float = 1.13,
     (``by_depth`` from :func:`slmlab.images.extract.error_by_defocus`); the targets and the depth of field drawn."""
     ax = _ax(ax)
     for method, d in by_depth.groupby("method"):
-        ax.plot(d["z_bin_mm"], d["rms_px"], "o-", ms=3, label=method)
+        ax.plot(_as_drawn(d["z_bin_mm"]), _as_drawn(d["rms_px"]), "o-", ms=3, label=method)
     ax.axvspan(-depth_of_field_mm, depth_of_field_mm, color="0.92", zorder=0, label="depth of field")
     ax.axhline(targets[0], color="tab:green", ls="--", lw=0.8, label=f"target in focus ({targets[0]} px)")
     ax.axhline(targets[1], color="tab:red", ls="--", lw=0.8, label=f"target over the depth of field ({targets[1]} px)")
     ax.set_xlabel("z above the focal plane [mm]")
     ax.set_ylabel("centre RMS error per coordinate [px]")
-    ax.set_ylim(0, max(0.06, float(by_depth["rms_px"].max()) * 1.1))
+    ax.set_ylim(0, max(0.06, float(_as_drawn(by_depth["rms_px"]).max()) * 1.1))
     ax.legend(fontsize=7)
     ax.set_title("Dot centre error against defocus (rendered images vs truth)", fontsize=10)
     return ax
@@ -252,7 +293,7 @@ def plot_display(df, ax=None, *, by: str = "row", title: str = "", xlabel: str =
     other = "col" if by == "row" else "row"
     for _, g in df.groupby(by):
         g = g.sort_values(other)
-        ax.plot(g["x"], g["y"], ".-", ms=1.5, lw=0.5, color="tab:red" if by == "row" else "tab:blue")
+        ax.plot(_as_drawn(g["x"]), _as_drawn(g["y"]), ".-", ms=1.5, lw=0.5, color="tab:red" if by == "row" else "tab:blue")
     ax.set_title(title, fontsize=9)
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
@@ -269,9 +310,10 @@ def plot_display_quad(frames: dict, axes=None, *, suptitle: str = ""):
     for r, kind in enumerate(("rows", "cols")):
         for c, side in enumerate("lr"):
             name = f"({next(letters)}) {kind[:-1] if kind == 'rows' else 'column'}s of grid points, {'left' if side == 'l' else 'right'} image"
-            plot_display(frames[(kind, side)], axes[r, c], by="row" if kind == "rows" else "col", title=name,
-                         xlabel="w1 [px]" if kind == "rows" else "w2 [px]",
-                         ylabel="w2 − w2[i,1] + i·s [px]" if kind == "rows" else "w1 − chord + j·s [px]")
+            frame = frames[(kind, side)]
+            default = "w2 − w2[i,1] + i·s [px]" if kind == "rows" else "w1 − chord + j·s [px]"
+            plot_display(frame, axes[r, c], by="row" if kind == "rows" else "col", title=name,
+                         xlabel="w1 [px]" if kind == "rows" else "w2 [px]", ylabel=frame.attrs.get("y_label", default))
     if suptitle:
         axes[0, 0].figure.suptitle(suptitle, fontsize=10)
     return axes
@@ -290,26 +332,31 @@ def plot_virtual_lines(df, ax=None):
     return ax
 
 
-def plot_disparity(table, axes=None, *, column: str = "D0", fits: dict | None = None, title: str = ""):
+def plot_disparity(table, axes=None, *, column: str = "D0", fits: dict | None = None, title: str = "",
+                   ylabel: str = "disparity D = w1_r − w1_l [px]"):
     """Figs 7–8: disparity against ``w1`` along the X sequence (a) and against ``w2`` along the Y sequence (b).
 
+    ``column`` is the table's disparity to draw (``D0`` as measured, or a corrected one), labelled ``ylabel``;
     ``fits`` maps a label to a function ``w1 → D`` drawn over panel (a) (the fitted parabolas)."""
     if axes is None:
         _, axes = new_figure(1, 2, width_in=10.0, height_in=3.8)
     x = table[table["sequence"] == "X"]
     y = table[table["sequence"] == "Y"]
-    axes[0].scatter(x["w1_l"], x[column], s=1.5, c=x["row"] * 10 + x["col"], cmap="viridis", rasterized=True)
+    axes[0].scatter(_as_drawn(x["w1_l"]), _as_drawn(x[column]), s=1.5, c=x["row"] * 10 + x["col"], cmap="viridis",
+                    rasterized=True)
     for label, fn in (fits or {}).items():
-        w = np.linspace(x["w1_l"].min(), x["w1_l"].max(), 200)
-        axes[0].plot(w, fn(w), lw=1.2, label=label)
+        w = np.linspace(*_as_drawn([x["w1_l"].min(), x["w1_l"].max()]), 200)
+        axes[0].plot(w, _as_drawn(fn(w)), lw=1.2, label=label)
     if fits:
         axes[0].legend(fontsize=7)
     axes[0].set_xlabel("w1 (left) [px]")
-    axes[0].set_ylabel(f"{column} [px]")
+    axes[0].set_ylabel(ylabel)
     axes[0].set_title("(a) X sequence: disparity against w1", fontsize=9)
     if len(y):
-        axes[1].scatter(y["w2_l"], y[column], s=1.5, c=y["row"] * 10 + y["col"], cmap="viridis", rasterized=True)
+        axes[1].scatter(_as_drawn(y["w2_l"]), _as_drawn(y[column]), s=1.5, c=y["row"] * 10 + y["col"], cmap="viridis",
+                        rasterized=True)
     axes[1].set_xlabel("w2 (left) [px]")
+    axes[1].set_ylabel(ylabel)
     axes[1].set_title("(b) Y sequence: disparity against w2", fontsize=9)
     if title:
         axes[0].figure.suptitle(title, fontsize=10)
@@ -331,9 +378,12 @@ def plot_dz_vs_dd(samples, ez_mm_per_px: float, ax=None):
 
 def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str = ""):
     """Figs 12 and 16: S coefficients [%] over RA1–RA5 as bars, one panel per sequence (X, Y, Z), the
-    paper's reported values marked (``reference``: ``{element: {interval: percent}}``)."""
+    paper's reported values marked (``reference``: ``{element: {interval: percent}}``).
+
+    The bars' colours are the residual's component (X, Y, Z), the same in every panel; one legend for the
+    figure, below the panels, so that no bar is hidden behind it."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=12.0, height_in=3.6, sharey=True)
+        _, axes = new_figure(1, 3, width_in=12.0, height_in=3.9, sharey=True)
     intervals = list(s_table.columns)
     xs = np.arange(len(intervals))
     width = 0.26
@@ -343,7 +393,7 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
             el = seq + comp
             if el not in s_table.index:
                 continue
-            ax.bar(xs + (k - 1) * width, s_table.loc[el].to_numpy(), width, color=colours[comp], label=f"S$_{{{seq}{comp}}}$")
+            ax.bar(xs + (k - 1) * width, _as_drawn(s_table.loc[el].to_numpy()), width, color=colours[comp])
             for ra, val in ((reference or {}).get(el) or {}).items():
                 if ra in intervals:
                     i = intervals.index(ra)
@@ -351,9 +401,14 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
         ax.axhline(95, color="0.4", ls="--", lw=0.8)
         ax.set_xticks(xs, intervals)
         ax.set_ylim(0, 105)
-        ax.set_title(f"({'abc'['XYZ'.index(seq)]}) {seq} sequence", fontsize=9)
-        ax.legend(fontsize=7, loc="lower right")
-    axes[0].set_ylabel("S [%]  (black: paper)")
+        ax.set_title(f"({'abc'['XYZ'.index(seq)]}) {seq} sequence: S$_{{{seq}X}}$, S$_{{{seq}Y}}$, S$_{{{seq}Z}}$",
+                     fontsize=9)
+    axes[0].set_ylabel("S [%]")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[c]) for c in "XYZ"]
+    handles += [plt.Line2D([], [], color="k", marker="_", ms=12, mew=2, ls=""),
+                plt.Line2D([], [], color="0.4", ls="--", lw=0.8)]
+    labels = [f"{c} component of the residual" for c in "XYZ"] + ["the paper's reported value", "95 %"]
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=5, fontsize=8, frameon=False)
     if title:
         axes[0].figure.suptitle(title, fontsize=10)
     return axes
@@ -618,8 +673,8 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
 
 def plot_recovered_share(table, ax=None):
     """The share of the disparity's curvature the single pass recovers against the ratio of the plate's width
-    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression formula of
-    METHOD.md §2)."""
+    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression attenuation of
+    :func:`slmlab.paper.alignment.recovered_share`)."""
     ax = _ax(ax)
     t = table.sort_values("plate_width_over_path_length")
     ax.plot(t["plate_width_over_path_length"], t["recovered_share"], "o", label="single pass / joint fit (measured)")
@@ -675,4 +730,23 @@ def plot_point_uncertainty(points, ax=None):
     ax.set_xlabel("reconstructed Z [mm]")
     ax.set_ylabel("predicted 1σ per point [µm]")
     ax.legend(fontsize=8, markerscale=4)
+    return ax
+
+
+def plot_ratio_grid(ratios, key: str, ax=None, *, limit: float = 1.0, title: str = "", vmax: float = 3.0):
+    """One rig × design × coordinate grid of a ratio (``ratios``: :func:`slmlab.studies.zoo.ratio_table`;
+    ``key``: ``"vs_floor"``, ``"vs_polynomial"`` or ``"vs_candidates"``), each cell coloured on a log scale
+    from 1/``vmax`` to ``vmax`` and labelled with its value; cells above ``limit`` are outlined."""
+    ax = _ax(ax)
+    labels = [f"{r} · {d}" for r, d in zip(ratios["rig"], ratios["design"])]
+    values = ratios[[f"{c}_{key}" for c in "XYZ"]].to_numpy(float)
+    ax.imshow(np.log(np.clip(values, 1 / vmax, vmax)), cmap="RdYlGn_r", vmin=-np.log(vmax), vmax=np.log(vmax),
+              aspect="auto")
+    for (i, j), v in np.ndenumerate(values):
+        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6)
+        if v > limit * (1 + 1e-9):
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=1.2, edgecolor="k"))
+    ax.set_xticks(range(3), ["X", "Y", "Z"])
+    ax.set_yticks(range(len(labels)), labels, fontsize=6)
+    ax.set_title(title, fontsize=9)
     return ax

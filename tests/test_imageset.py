@@ -1,5 +1,5 @@
 """Extraction of images as a camera writes them: stage.csv, bit depth, polarity, markers, two-level plates,
-plates larger than the field, OpenCV's boards, and every way a user's images can be wrong (DATA_FORMAT.md)."""
+plates larger than the field, OpenCV's boards, and every way a user's images can be wrong (README, "The format")."""
 
 import json
 import shutil
