@@ -192,3 +192,22 @@ def test_a_table_caption_is_the_first_line_of_its_markdown_only(tmp_path, monkey
     assert md[0] == "*Two numbers, for a test (notebook 00).*" and md[1] == ""
     assert md[2:] == (tmp_path / "plain.md").read_text().splitlines()
     assert (tmp_path / "captioned.csv").read_bytes() == (tmp_path / "plain.csv").read_bytes()
+
+
+def test_a_set_of_points_reads_without_what_only_extraction_needs(set_dir):
+    """dot_diameter_mm and a ChArUco board's details are checked by extraction, not by the reader; what is
+    given is still checked."""
+    meta = set_dir / "meta.json"
+    good = json.loads(meta.read_text())
+    plates = {k: {kk: vv for kk, vv in v.items() if kk != "dot_diameter_mm"} for k, v in good["plates"].items()}
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    assert "dot_diameter_mm" not in slmlab.read_set(set_dir).plate("X")
+    plates["moving"]["pattern"] = "charuco"
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    assert slmlab.read_set(set_dir).plate("X")["pattern"] == "charuco"
+    plates["moving"]["board"] = "DICT_6X6_250"
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    expect_error(set_dir, "plates.moving.board must be an object")
+    plates["moving"]["board"], plates["moving"]["dot_diameter_mm"] = {"squares": [8, 8]}, -1
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    expect_error(set_dir, "plates.moving.dot_diameter_mm must be a positive number")

@@ -270,7 +270,7 @@ class SoloffModel(Model):
             r = (wT - f) * wt
             step = _solve3(j, r)
             x += step
-            if np.abs(step).max() < tolerance:
+            if not step.size or np.abs(step).max() < tolerance:  # (no point: nothing to solve)
                 break
         return x
 
