@@ -7,6 +7,7 @@ and returns the Axes. Names follow the paper's figures.
 from __future__ import annotations
 
 import cv2
+import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
@@ -22,8 +23,9 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
            "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
-           "plot_model_comparison", "plot_recovered_share"]
+           "plot_model_comparison", "plot_recovered_share", "plot_numbering", "plot_point_uncertainty"]
 
+MPL_VERSION = tuple(int(p) for p in matplotlib.__version__.split(".")[:2])
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
 
@@ -499,15 +501,20 @@ def plot_trajectory(trajectory_mm, target_mm, ax=None):
 
 
 def plot_volumetric_errors(errors: dict, ax=None):
-    """Displacement error magnitude [µm] against the depth of the validation positions, one series per
-    model (``errors``: name → DataFrame with ``Z_mm`` and ``error_um``), log scale."""
-    ax = _ax(ax)
-    for name, d in errors.items():
-        ax.plot(d["Z_mm"], d["error_um"], ".", ms=2, label=name, alpha=0.6)
-    ax.set_yscale("log")
-    ax.set_xlabel("stage Z of the validation position [mm]")
-    ax.set_ylabel("|displacement error| [µm]")
-    ax.legend(fontsize=7, markerscale=4)
+    """Displacement error magnitude [µm] over the validation positions, one box per model (``errors``: name →
+    DataFrame with ``error_um``, as :func:`slmlab.studies.workspace.volumetric_errors` returns; first at the
+    top): the box holds the middle half, the whiskers 5–95 %, the line the median; log scale."""
+    if ax is None:
+        _, ax = new_figure(width_in=8.0, height_in=0.45 * len(errors) + 1.2)
+    names = list(errors)
+    horizontal = {"orientation": "horizontal"} if MPL_VERSION >= (3, 10) else {"vert": False}  # renamed in 3.10
+    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], **horizontal, whis=(5, 95), widths=0.6,
+               flierprops={"marker": ".", "ms": 2, "alpha": 0.4}, medianprops={"color": "k"})
+    ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("|displacement error| [µm]   (box: the middle half; whiskers: 5–95 %)")
+    ax.grid(axis="x", which="both", color="0.9", lw=0.5)
     ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
     return ax
 
@@ -548,8 +555,8 @@ def plot_accuracy_vs_positions(table, axes=None):
     for ax, c in zip(axes, "XYZ"):
         for (case, model), d in table.groupby(["case", "model"], sort=False):
             d = d.sort_values("positions")
-            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "--", ms=3,
-                    marker="o" if model == "direct" else ("s" if "paper" in case else "x"), label=f"{model}, {case}")
+            ax.plot(d["positions"], d[f"{c}_vs_floor"], ls="-" if model == "direct" else "--", ms=3,
+                    marker="o" if model == "direct" else ("x" if "perfect" in case else "s"), label=f"{model}, {case}")
         ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
@@ -567,17 +574,18 @@ def plot_leave_one_plane_out(table, axes=None):
     """Real Z stack, leave one plane out: RMS error [µm] of the left-out plane per coordinate, per variant
     (solid), and the default model's mean predicted 1σ (dashed)."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.2, sharex=True)
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.7, sharex=True)
     for ax, c in zip(axes, "XYZ"):
         for label, d in table.groupby("model", sort=False):
-            ax.plot(d["Z_mm"], 1e3 * d[f"E{c}_mm"], "o-", ms=3, label=f"{label}: RMS error")
+            ax.plot(d["Z_mm"], d[f"E{c}_um"], "o-", ms=3, label=f"{label}: RMS error")
         first = table[table["model"] == table["model"].iloc[0]]
-        ax.plot(first["Z_mm"], 1e3 * first[f"s{c}_mm"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
+        ax.plot(first["Z_mm"], first[f"s{c}_um"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
         ax.set_xlabel("left-out plane Z [mm]")
         ax.set_title(c, fontsize=10)
         ax.set_ylim(bottom=0)
-    axes[0].set_ylabel("µm")
-    axes[0].legend(fontsize=7)
+    axes[0].set_ylabel("left-out plane [µm]")
+    handles, labels = axes[0].get_legend_handles_labels()   # one legend under the panels, over no line
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 3), fontsize=7)
     return axes
 
 
@@ -643,8 +651,10 @@ def plot_level_map(image, table, ax=None, *, title: str = "", reduce: int = 2):
 
 def plot_model_comparison(table, ax=None, *, reference: str | None = None, title: str = ""):
     """RMS error [µm] per coordinate of each model (a row of ``table``: ``model, X_um, Y_um, Z_um``), one group
-    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group."""
-    ax = _ax(ax)
+    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group; the
+    legend beside the axes, where it hides no bar."""
+    if ax is None:
+        _, ax = new_figure(width_in=9.5, height_in=4.0)
     n = len(table)
     width = 0.8 / n
     for i, (_, row) in enumerate(table.iterrows()):
@@ -657,7 +667,7 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
     ax.set_xticks(range(3), ["X", "Y", "Z"])
     ax.set_ylabel("RMS error after one offset [µm]")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return ax
 
 
@@ -675,6 +685,51 @@ def plot_recovered_share(table, ax=None):
     ax.set_ylabel("share of the curvature recovered")
     ax.set_ylim(0, 1.05)
     ax.legend(fontsize=7)
+    return ax
+
+
+# ------------------------------------------------------------------------------------------ your microscope (notebook 12)
+def plot_numbering(image, table, ax=None, *, title: str = "", every: int = 1):
+    """An image, zoomed on the extracted dots, with the dots marked and labelled ``row,col`` (every ``every``-th
+    row and column), the first row and column drawn as arrows from dot ``[1, 1]``: the numbering to check by
+    eye. ``table`` has ``row, col, w1, w2`` [px]."""
+    ax = _ax(ax)
+    lo, hi = np.percentile(image, [1, 99.5])
+    ax.imshow(image, cmap="gray", vmin=lo, vmax=hi)
+    ax.plot(table["w1"], table["w2"], "o", ms=5, mfc="none", mec="tab:orange", mew=1.0)
+    shown = table[((table["row"] - 1) % every == 0) & ((table["col"] - 1) % every == 0)]
+    for _, r in shown.iterrows():
+        ax.annotate(f"{int(r['row'])},{int(r['col'])}", (r["w1"], r["w2"]), xytext=(9, 9), textcoords="offset points",
+                    fontsize=7, color="navy", bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})
+    first = table.set_index(["row", "col"])
+    if (1, 1) in first.index:
+        o = first.loc[(1, 1), ["w1", "w2"]].to_numpy(float)
+        for key, colour, label in (((1, 2), "tab:red", "along a row (col + 1)"), ((2, 1), "tab:cyan", "along a column (row + 1)")):
+            if key in first.index:
+                d = first.loc[key, ["w1", "w2"]].to_numpy(float) - o
+                ax.annotate("", o + 1.8 * d, o, arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
+                ax.plot([], [], "-", color=colour, label=label)
+        ax.plot(*o, "o", ms=11, mfc="none", mec="tab:red", mew=1.5, label="dot [1, 1]")
+        ax.legend(fontsize=7, loc="lower right")
+    span = max(np.ptp(table["w1"]), np.ptp(table["w2"]), 1.0)
+    ax.set_xlim(table["w1"].min() - 0.12 * span, table["w1"].max() + 0.12 * span)  # the plate, not the whole image
+    ax.set_ylim(table["w2"].max() + 0.12 * span, table["w2"].min() - 0.12 * span)
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    return ax
+
+
+def plot_point_uncertainty(points, ax=None):
+    """Per-point 1σ [µm] of reconstructed points (``reconstruct``'s ``sX_mm, sY_mm, sZ_mm``) against their
+    reconstructed depth ``Z_mm`` [mm], one colour per coordinate."""
+    ax = _ax(ax)
+    for c, colour in zip("XYZ", ("tab:red", "tab:green", "tab:blue")):
+        ax.plot(points["Z_mm"], 1e3 * points[f"s{c}_mm"], ".", ms=2, color=colour, label=f"σ{c}")
+    ax.set_yscale("log")
+    ax.set_xlabel("reconstructed Z [mm]")
+    ax.set_ylabel("predicted 1σ per point [µm]")
+    ax.legend(fontsize=8, markerscale=4)
     return ax
 
 

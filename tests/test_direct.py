@@ -199,11 +199,11 @@ def test_the_real_z_stack_calibrates_and_its_uncertainty_is_the_right_size(piv):
     direct = slmlab.calibrate(cal, "direct")
     assert direct.options["mode"] == "zstack" and abs(direct.frame["direction"][1]) > 0.99  # oblique camera: rows
     lopo = workspace.leave_one_plane_out(cal, {"default": {}, "linear": {"model": "direct", "degree": 1}})
-    rms = lopo.groupby("model")[["EX_mm", "EY_mm", "EZ_mm"]].apply(lambda g: np.sqrt((g ** 2).mean()))
+    rms = lopo.groupby("model")[["EX_um", "EY_um", "EZ_um"]].apply(lambda g: np.sqrt((g ** 2).mean()))
     assert (rms.loc["linear"] > 3 * rms.loc["default"]).all(), rms   # the initial linear model is not enough
     d = lopo[lopo["model"] == "default"]
     for c in "XYZ":
-        ratio = np.sqrt(np.mean(d[f"E{c}_mm"] ** 2)) / np.mean(d[f"s{c}_mm"])
+        ratio = np.sqrt(np.mean(d[f"E{c}_um"] ** 2)) / np.mean(d[f"s{c}_um"])
         assert 0.5 < ratio < 2.0, (c, ratio)
 
 
