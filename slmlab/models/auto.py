@@ -21,10 +21,11 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    positions where there are too few to interpolate between: holding out one of two planes measures an
    extrapolation over the full depth, which says nothing of the error inside it. Then nothing measured says how
    a plain polynomial bends between the depths (and just past them): one whose difference there from every
-   depth-pinned candidate varies across the field by more than :data:`BETWEEN_DEPTHS` times their held-out
-   errors is dropped for that coordinate (a cubic through two planes can put the midplane far off while
-   fitting both planes to the noise). A bow in depth the same across the field at one depth is not held against
-   it: perspective bends depth so between planes, and a depth-pinned model is the one that cannot follow.
+   depth-pinned candidate (in the frame they share: both fit the calibrated depths) is more than
+   :data:`BETWEEN_DEPTHS` times their held-out errors is dropped for that coordinate (a cubic through two
+   planes can put the midplane far off while fitting both planes to the noise). The check is conservative:
+   where perspective bows depth between two planes, a depth-pinned model cannot follow the bow and a
+   polynomial can, and nothing measured at the planes says which is right (notebook 11).
 3. **Choice**, per coordinate: the plain polynomial with the smallest held-out error (the lowest degree
    within :data:`TIE` of the best), unless another candidate is clearly better, by more than :data:`MARGIN`
    of it; then the best of those (within :data:`TIE`, the earlier in :data:`CANDIDATES`).
@@ -309,15 +310,14 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     dropped: set[tuple[str, int]] = set()
     if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not pinned:
         return dropped
-    w, level = between_depths(pts, world)
+    w = between_depths(pts, world)
     if not len(w):
         return dropped
     refs = {c: fitted[c].reconstruct(w) for c in pinned}
     for label in [c for c in cv if _is_polynomial(c)]:
         p = fitted[label].reconstruct(w)
         for k, axis in enumerate("XYZ"):
-            gaps = {r: _bend(p[:, k] - q[:, k], level if k == 2 else np.zeros_like(level), centred=k == 2)
-                    for r, q in refs.items()}
+            gaps = {r: float(np.sqrt(np.mean((p[:, k] - q[:, k]) ** 2))) for r, q in refs.items()}
             if all(g > BETWEEN_DEPTHS * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
                 dropped.add((label, k))
                 skipped[f"{label} ({axis})"] = (f"bends between the {depths} calibrated depths: "
@@ -325,13 +325,3 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
                                                 + f", held-out {1e3 * min(cv[r][k] for r in pinned):.3g} um")
     return dropped
 
-
-def _bend(diff: np.ndarray, level: np.ndarray, *, centred: bool) -> float:
-    """RMS of two models' difference at the points between depths; for depth (``centred``) less its mean at each
-    level: a bow in depth the same across the field at one depth (what perspective does between planes, which a
-    depth-pinned model cannot follow and a polynomial can) is not held against either. A difference that varies
-    across the field, or a lateral shift with depth that no stage or lens makes, is a bend nothing measured."""
-    if not centred:
-        return float(np.sqrt(np.mean(diff ** 2)))
-    means = np.bincount(level, diff) / np.maximum(np.bincount(level), 1)
-    return float(np.sqrt(np.mean((diff - means[level]) ** 2)))

@@ -123,30 +123,25 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
     return np.sqrt(np.mean(e ** 2, axis=0))
 
 
-def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarray:
     """Image coordinates ``(m, 4)`` [px] between each dot and its nearest neighbour across the target (in world
     ``x, y``) at the next depth up (the same dot on the next plane of a Z stack, the neighbouring dot of the
     other level of a two-level plate): halfway, and for the outermost pair of depths also ``beyond`` of the way
-    past each end (a calibration is used a little past its last plane), and a label ``(m,)`` of each point's
-    level (pair of depths and fraction). Not images of known points (the image of a midpoint is not the midpoint
+    past each end (a calibration is used a little past its last plane). Not images of known points (the image of a midpoint is not the midpoint
     of the images, to second order), but the same inputs for every model: where two models that both fit the
     calibrated depths disagree there, one of them bends between the depths in a way nothing measured."""
     w = pts[IMAGE_COLUMNS].to_numpy(float)
     z = np.round(world[:, 2], 6)
     levels = np.unique(z)
-    out, labels = [], []
+    out = []
     for k, (lo, hi) in enumerate(zip(levels[:-1], levels[1:])):
         a, b = z == lo, z == hi
         d, j = cKDTree(world[b, :2]).query(world[a, :2])
         near = d <= 1.5 * np.median(d) + 1e-12
         wa, wb = w[a][near], w[b][j[near]]
         ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(levels) - 2 else [])
-        for t in ts:
-            out.append(wa + t * (wb - wa))
-            labels.append(np.full(len(wa), len(labels)))
-    if not out:
-        return np.empty((0, 4)), np.empty(0, int)
-    return np.vstack(out), np.concatenate(labels)
+        out += [wa + t * (wb - wa) for t in ts]
+    return np.vstack(out) if out else np.empty((0, 4))
 
 
 def thin_dots(pts, max_rows: int) -> np.ndarray:
