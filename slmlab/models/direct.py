@@ -575,7 +575,7 @@ class DirectModel(Model):
 
     name = "direct"
     summary = ("direct polynomial mapping (v1, v2, D) -> stage frame, stage errors as random effects, degree by "
-               "held-out positions; calibrates from a Z stack alone")
+               "held-out dots and positions; calibrates from a Z stack alone")
     accuracy_rank = 5
     units = {"coef": "mm per normalised monomial", "const": "mm", "centroid_noise_px": "px", "sigma_mm": "mm",
              "frame": "px (centre, scale); unit vector (direction)", "noise_poly": "mm^2 per power of Dn",

@@ -48,6 +48,7 @@ __all__ = [
     "Microscope",
     "rotation_z",
     "from_dict",
+    "plain_values",
     "describe",
     "depth_response",
 ]
@@ -441,18 +442,19 @@ class Microscope:
 
     def as_dict(self) -> dict:
         """All parameters as plain JSON-able values (nested dicts, units in the names)."""
-        return _plain(asdict(self))
+        return plain_values(asdict(self))
 
     def replace(self, **changes) -> "Microscope":
         """A copy with some top-level parts replaced (``optics=``, ``stage=``, ...)."""
         return replace(self, **changes)
 
 
-def _plain(obj):
+def plain_values(obj):
+    """``obj`` with NumPy scalars made Python numbers and tuples lists, recursively (JSON-able)."""
     if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
+        return {k: plain_values(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
+        return [plain_values(v) for v in obj]
     if isinstance(obj, (np.floating, np.integer)):
         return obj.item()
     return obj

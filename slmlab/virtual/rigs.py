@@ -65,6 +65,7 @@ import numpy as np
 from ..errors import SlmlabError
 from .microscope import CentroidNoise, Plate, Stage
 from .microscope import from_dict as microscope_from_dict
+from .microscope import plain_values
 
 __all__ = ["DOF_BLUR_PX", "WATER_INDEX", "RANGES", "SENSORS", "ViewErrors", "Camera", "StereoRig", "GreenoughRig",
            "StereoDicRig", "StereoPivRig", "RIG_CLASSES", "RIGS", "make_rig", "random_rig", "rig_by_name", "rig_from_dict",
@@ -411,7 +412,7 @@ class StereoRig:
 
     def as_dict(self) -> dict:
         """Every physical parameter as plain JSON-able values, with ``"rig": kind``."""
-        return {"rig": self.kind, **_plain(asdict(self))}
+        return {"rig": self.kind, **plain_values(asdict(self))}
 
     def replace(self, **changes):
         """A copy with some parameters replaced (``moving_plate=``, ``stage=``, ...)."""
@@ -443,16 +444,6 @@ def _common_field(rig: StereoRig) -> tuple[float, float]:
     b = largest(lambda v: seen(0.0, v), big)
     k = largest(lambda v: seen(v * a, v * b), 1.0)
     return 2 * k * a, 2 * k * b
-
-
-def _plain(obj):
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    return obj
 
 
 def _air_camera(sign: int, aim, angle_deg, distance_mm, errors: ViewErrors, *, focal_mm, image_distance_mm,
