@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 
 from ..io import KEY_COLUMNS, CalibrationSet, read_set
-from ..images.dots import METHODS, read_image
+from ..images.centres import METHODS
+from ..images.dots import read_image
 from ..images.extract import extract_image
 from ..virtual.microscope import from_dict
 
