@@ -448,18 +448,23 @@ def _hot_pairs(img: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
     return out
 
 
-def clean_hot_pixels(img: np.ndarray, dot_radius_px: float) -> tuple[np.ndarray, int]:
+def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
 
     A pixel is hot if it exceeds all eight neighbours by more than 8 noise σ and by more than their own
     range (dead: the same, below); if the image has such pixels, adjacent pairs are looked for too
-    (:func:`_hot_pairs`). Only for dots of radius ≥ 2.5 px, whose own
-    peak never stands out of its neighbours like that; smaller dots are left alone. Works in the image's
-    own type, so 8- and 16-bit images are not converted."""
+    (:func:`_hot_pairs`). The noise σ is the robust spread of the image less its 3 × 3 median, over the pixels
+    above the image's black floor (a dark-field image is mostly zeros, which would make it nil). Pixels
+    inside the ``dots`` (first centres ``(n, 2)`` [px], radius ``dot_radius_px``) are left alone: the
+    texture of a real dot is not a hot pixel, and the centre estimators see past a speck on a dot. Only
+    for dots of radius ≥ 2.5 px, whose own peak never stands out of its neighbours like that. Works in the
+    image's own type, so 8- and 16-bit images are not converted."""
     if dot_radius_px < 2.5:
         return img, 0
     med = cv2.medianBlur(img, 3)
-    d = img[::8, ::8].astype(np.float32) - med[::8, ::8]
+    sub = med[::4, ::4]
+    d = (img[::4, ::4].astype(np.float32) - sub)[sub > sub.min()] if (sub > sub.min()).sum() > 100 else \
+        (img[::4, ::4].astype(np.float32) - sub).ravel()
     sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) + 1e-6
     if img.dtype != np.float32:
         sigma = max(sigma, 1.0)                  # at least one grey level
@@ -468,15 +473,21 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float) -> tuple[np.ndarray,
     hot = _stand_out(img, ring, sigma)
     if cv2.countNonZero(hot) == 0:
         return img, 0
-    ys, xs = _positions(cv2.bitwise_or(hot, _hot_pairs(img, med, sigma)))
+    hot = cv2.bitwise_or(hot, _hot_pairs(img, med, sigma))
+    if dots is not None and len(dots):
+        inside = np.zeros(img.shape, np.uint8)
+        for x, y in np.rint(dots).astype(int):
+            cv2.circle(inside, (int(x), int(y)), int(np.ceil(dot_radius_px)), 255, -1)
+        hot = cv2.bitwise_and(hot, cv2.bitwise_not(inside))
+    ys, xs = _positions(hot)
+    if len(ys) == 0:
+        return img, 0
     out = img.copy()                           # the 5 × 5 median (a pair's partner does not pull it)
     h, w = img.shape
     o = np.arange(-2, 3)
     win = img[np.clip(ys[:, None, None] + o[None, :, None], 0, h - 1), np.clip(xs[:, None, None] + o[None, None, :], 0, w - 1)]
     out[ys, xs] = np.median(win.reshape(len(ys), -1), axis=1).astype(img.dtype)
     return out, len(ys)
-
-
 
 
 # ------------------------------------------------------------------------------------------ local search

@@ -157,7 +157,7 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
     if loc.fit is None:
         return loc
     radius = _dot_radius(loc)
-    loc.clean, loc.hot = clean_hot_pixels(img, radius)
+    loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on])
     con = local_contrast(loc.clean, dark=loc.dark) if loc.hot else loc.con
     grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
     loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
