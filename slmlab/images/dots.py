@@ -37,7 +37,8 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 
-__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "read_image", "as_float", "as_8bit", "dot_polarity",
+__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "read_image",
+           "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "Candidates", "sweep", "Marker", "polygon_kind",
            "marker_kind", "clean_hot_pixels", "search_missing"]
 
@@ -129,6 +130,8 @@ class Contrast:
         the interpolated mesh statistics on the reduced image [grey levels].
     signed
         the reduced, smoothed image, negated for dark dots (dots positive) [grey levels].
+    dark
+        the dots are darker than the plate.
     """
 
     z: np.ndarray
@@ -136,6 +139,7 @@ class Contrast:
     background: np.ndarray
     spread: np.ndarray
     signed: np.ndarray
+    dark: bool = False
 
     def to_full(self, xy: np.ndarray) -> np.ndarray:
         """Reduced-image coordinates ``(n, 2)`` → full-resolution ones [px] (pixel centres at integers)."""
@@ -189,7 +193,7 @@ def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
     cell = max(8, int(min(h, w) / 16 / r))
     bg, sd = _mesh_statistics(small, cell, dark)
     z = (small - bg) / sd
-    return Contrast(-z if dark else z, r, bg, sd, -small if dark else small)
+    return Contrast(-z if dark else z, r, bg, sd, -small if dark else small, dark)
 
 
 # ------------------------------------------------------------------------------------------ sweep
@@ -362,12 +366,12 @@ class Marker:
 
 def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     """``'triangle'``, ``'square'`` or ``'frame'`` (a square outline around a dot) for a contour large
-    enough to show its shape (≥ 150 px²); ``None`` for anything else (a dot, dust).
+    enough to show its shape (≥ 100 px², read at full resolution); ``None`` for anything else (a dot, dust).
 
     By two fills that an affine view leaves unchanged: of the smallest enclosing triangle (about 0.9 for a
     triangle, ``π/3√3`` = 0.60 for any ellipse, 0.5 for a square) and of the smallest enclosing rectangle
     (about 1 for a square, ``π/4`` for any ellipse)."""
-    if area < 150:
+    if area < 100:
         return None
     hull = cv2.convexHull(cnt)
     (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
@@ -381,22 +385,24 @@ def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     return "square" if square else None
 
 
-def marker_kind(con: Contrast, cand: Candidates, k: int, level: float) -> str | None:
-    """Shape of candidate ``k`` (``'triangle'``, ``'square'``, ``'frame'`` or ``None``) by
-    :func:`polygon_kind` on its outline at ``level`` [noise σ]."""
-    r = con.scale
-    half = int(np.ceil(max(cand.size[k]) / r / 2 + 3))
-    p, base = gather_patches(con.z, con.to_reduced(cand.xy[k:k + 1]), half)
-    contours, hier = cv2.findContours((p[0] > level).astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> str | None:
+    """Shape of candidate ``k`` (``'triangle'``, ``'square'``, ``'frame'`` or ``None``) by :func:`polygon_kind`
+    on its outline at ``level`` [noise σ], read on the full-resolution image (lightly smoothed) against the
+    local background and spread at the candidate: on the reduced image a small dot's outline is a polygon of
+    a few pixels, which may pass for a square."""
+    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+    p, base = gather_patches(img, cand.xy[k:k + 1], half)
+    rx, ry = np.clip(np.rint(con.to_reduced(cand.xy[k])).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
+    z = (cv2.GaussianBlur(p[0].astype(np.float32), (0, 0), 1.0) - con.background[ry, rx]) / con.spread[ry, rx]
+    contours, hier = cv2.findContours(((-z if con.dark else z) > level).astype(np.uint8), cv2.RETR_CCOMP,
+                                      cv2.CHAIN_APPROX_NONE)
     if not contours:
         return None
     outer = [c for c, hh in zip(contours, hier[0]) if hh[3] == -1]
-    cnt = max(outer, key=cv2.contourArea)
-    full = (con.to_full(cnt.reshape(-1, 2) + base[0] - half)).astype(np.float32).reshape(-1, 1, 2)
-    area = cv2.contourArea(full)
+    cnt = max(outer, key=cv2.contourArea).astype(np.float32)
+    area = cv2.contourArea(cnt)
     holes = [cv2.contourArea(c) for c, hh in zip(contours, hier[0]) if hh[3] != -1]
-    return polygon_kind(full, area, bool(holes) and max(holes) * r * r >= 0.03 * area)
-
+    return polygon_kind(cnt, area, bool(holes) and max(holes) >= 0.03 * area)
 
 
 # ------------------------------------------------------------------------------------------ hot pixels
@@ -504,9 +510,9 @@ def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, 
     """Dot evidence near image points ``at`` ``(m, 2)`` [px], each on its own local background.
 
     Around each point a square reaching a dot's diameter and 4 px beyond the search window, but not to the
-    next dot (so no neighbouring dot is in it), is taken from the reduced, smoothed image; a plane fitted to it outside a disk of the dot's radius plus
-    3 px (the dot, wherever the prediction's error puts it) is subtracted; the rest is averaged over a box
-    of the dot's size (a matched filter). Returns the filter's highest value within ``tol`` [px] of each
+    next dot (so no neighbouring dot is in it), is taken from the reduced, smoothed image; its background
+    (:func:`_less_background`, outside the search window and the dot) is subtracted; the rest is averaged
+    over a box of the dot's size (a matched filter). Returns the filter's highest value within ``tol`` [px] of each
     point [grey levels], its significance (over the filtered ring's robust spread) and where it is [px]."""
     r = con.scale
     rd, tr = radius / r, np.asarray(tol, float) / r
@@ -515,10 +521,7 @@ def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, 
     p, base = gather_patches(con.signed, con.to_reduced(at), half)
     off = np.arange(-half, half + 1, dtype=np.float32)
     oy, ox = np.meshgrid(off, off, indexing="ij")
-    ring = np.hypot(ox, oy) > rd + 3      # the dot, and a few px for the prediction's error
-    design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
-    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)
-    res = p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy)
+    res = _less_background(p, ox, oy, inner)        # the dot, wherever the prediction's error puts it
     k = max(1, int(round(0.8 * rd)))
     box = _box_means(res, k)
     o2 = off[k:len(off) - k]
@@ -537,19 +540,30 @@ def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, 
     return peak, peak / spread, con.to_full(where)
 
 
+def _less_background(p: np.ndarray, ox: np.ndarray, oy: np.ndarray, band: float) -> np.ndarray:
+    """Patches ``(n, S, S)`` less their local background: each column's mean over the rows farther than
+    ``band`` from the middle (above and below a dot: a vertical window streak or a gradient across the
+    columns goes, a gradient along them cancels), or, with fewer than two such rows on each side, a plane
+    fitted outside a disk of radius ``band``."""
+    rows = np.abs(oy[:, 0]) > band
+    if rows.sum() >= 4:
+        return p - p[:, rows, :].mean(axis=1, keepdims=True)
+    ring = np.hypot(ox, oy) > band
+    design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
+    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)
+    return p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy)
+
+
 def _flat_disks(con: Contrast, at: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Reduced-image patches around points ``at`` [px], less a plane fitted outside the dot (radius
-    ``radius`` [px] plus 1.5 reduced px), and the mask of the dot's disk (plus 2 reduced px)."""
+    """Reduced-image patches around points ``at`` [px], less their background outside the dot (radius
+    ``radius`` [px] plus 1.5 reduced px: :func:`_less_background`), and the mask of the dot's disk (plus 2
+    reduced px)."""
     rd = radius / con.scale
     half = int(np.ceil(rd + 4))
     p, _ = gather_patches(con.signed, con.to_reduced(at), half)
     off = np.arange(-half, half + 1, dtype=np.float32)
     oy, ox = np.meshgrid(off, off, indexing="ij")
-    d = np.hypot(ox, oy)
-    ring = d > rd + 1.5
-    design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
-    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)
-    return p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy), d <= rd + 2
+    return _less_background(p, ox, oy, rd + 1.5), np.hypot(ox, oy) <= rd + 2
 
 
 def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: float) -> np.ndarray:
@@ -575,7 +589,7 @@ def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: 
     if len(predicted) == 0:
         return np.empty(0, bool), np.empty((0, 2)), np.empty(0)
     ref_at = dots[np.linspace(0, len(dots) - 1, min(len(dots), 16)).astype(int)]
-    ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), 1.0), radius, pitch)
+    ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), float(con.scale)), radius, pitch)
     peak, sig, where = _local_peaks(con, predicted, tol, radius, pitch)
     inner = np.hypot(*(where - predicted).T) < np.maximum(np.asarray(tol) - con.scale, 0.5 * con.scale)
     ok = (sig >= 5) & (peak >= 0.2 * float(np.median(ref))) & inner

@@ -269,7 +269,7 @@ def _refined(loc: _Located, method: str, two_level: bool):
 
 
 # ------------------------------------------------------------------------------------------ the report
-def _candidate_reasons(con: Contrast, cand: Candidates, fit: LatticeFit) -> tuple[np.ndarray, list]:
+def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit) -> tuple[np.ndarray, list]:
     """Why each candidate the lattice left off was left off (an array of reasons; on-lattice ones empty),
     and the markers among them (:func:`slmlab.images.dots.marker_kind`)."""
     nodes = fit.nodes(grow=2)
@@ -290,23 +290,29 @@ def _candidate_reasons(con: Contrast, cand: Candidates, fit: LatticeFit) -> tupl
         reason[k] = fixed.get(c) or (f"off the lattice ({d[k]:.1f} px from the nearest node)" if c == 5 else
                                      f"too {'small' if ratio[k] < 0.25 else 'large'} ({ratio[k]:.2g} of the "
                                      "dots' median area)")
-    return reason, _markers(con, cand, fit, reason, ratio)
+    return reason, _markers(img, con, cand, fit, reason, ratio)
 
 
-def _markers(con: Contrast, cand: Candidates, fit: LatticeFit, reason: np.ndarray, ratio: np.ndarray) -> list:
+def _markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, reason: np.ndarray,
+             ratio: np.ndarray) -> list:
     """The markers among the candidates off the lattice (their ``reason`` set to the marker's kind): solid
-    shapes of about a dot's size, as plain to see as the dots and apart from them, read at their reference
-    level; and thin outlines (a ring, a frame) around a dot, read at their widest."""
+    shapes of about a dot's size away from every lattice node (a plate's markers sit in its holes), as plain
+    to see as the dots and apart from them (a shape that parallax brings near a dot is seen apart from it
+    only at the higher levels of the sweep), read at their reference level; and thin outlines (a ring, a
+    frame) centred on a dot and larger than it, read at their widest."""
     markers = []
     dd, _ = cKDTree(cand.xy[fit.on]).query(cand.xy)
     apart = dd > 1.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)    # not a piece of a dot
     bright = cand.peak >= 0.3 * np.median(cand.peak[fit.on])
-    shapes = (ratio > 0.3) & (ratio < 4) & (cand.area >= 150) & apart & bright
+    off = np.array([str(r).startswith("off the lattice (") for r in reason])
+    shapes = (ratio > 0.3) & (ratio < 4) & (cand.area >= 100) & apart & bright & off
     outline = cand.area < 0.4 * cand.size[:, 0] * cand.size[:, 1]          # a ring or frame: mostly hole
-    frames = (cand.hole | outline) & ~apart
-    for k in np.flatnonzero((reason != "") & ~cand.border & ((shapes & (cand.born == 0)) | frames)):
-        kind = marker_kind(con, cand, k, cand.low[k] if frames[k] and not shapes[k] else cand.level[k])
-        if kind:
+    around = (dd < 0.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)) & (
+        cand.size > 1.2 * np.median(cand.size[fit.on], axis=0)).all(axis=1)
+    frames = (cand.hole | outline) & around                                # a frame centred on a dot, larger
+    for k in np.flatnonzero((reason != "") & ~cand.border & (shapes | frames)):
+        kind = marker_kind(img, con, cand, k, cand.low[k] if frames[k] and not shapes[k] else cand.level[k])
+        if (kind == "frame" and frames[k]) or (kind in ("triangle", "square") and shapes[k]):
             markers.append(Marker(kind, tuple(cand.xy[k])))
             reason[k] = f"marker: {kind}"
     return markers
@@ -353,11 +359,12 @@ def report_summary(report: pd.DataFrame) -> str:
 
 # ------------------------------------------------------------------------------------------ anchoring
 def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *, anchor: str, marker_origin,
-            two_level: bool, shape: tuple[int, int], margin_px: float):
+            two_level: bool, seen):
     """The plate's ``[row, col]`` of one image's lattice: from an L of donut markers, from a square and a
     triangle or a frame (an origin frame), or from the plate's size (:mod:`slmlab.images.lattice`). Returns
     the table (with ``row, col``, sorted, where anchored), the frame (``'plate'``, ``'origin'`` or ``None``),
-    how it was anchored, why not, and the plate's window in ``i1, i2`` where its size numbered it."""
+    how it was anchored, why not, and the plate's window in ``i1, i2`` where its size numbered it. ``seen``:
+    where the image would show a dot (:func:`_seeable`)."""
     frame, how, note, window = None, "", "", None
     holes = table["marker"].to_numpy(bool)
     donuts = int(holes.sum())
@@ -383,7 +390,7 @@ def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *,
             note = ("no markers found and the plate's rows and cols are not given (a plate larger than the "
                     "field needs markers, or neighbouring images to track it from)")
         else:
-            rc, inside, note, window = number_plate(pl, rows, cols, shape, margin_px)
+            rc, inside, note, window = number_plate(pl, rows, cols, seen)
             if rc is not None:
                 table["row"], table["col"], frame = rc[0], rc[1], "plate"
                 how = "the plate's size" + (f" ({note})" if note else "")
@@ -458,14 +465,40 @@ def _table(loc: _Located, method: str, two_level: bool):
     return table, pl, dropped
 
 
+def _seeable(loc: _Located, table: pd.DataFrame, margin_px: float):
+    """``seen(points (n, 2) [px]) -> (n,)``: where this image would show a dot of the plate: at least
+    ``margin_px`` inside it, not saturated, on a background like the found dots' (within their range and
+    three robust spreads; a saturated glare or a camera's text strip is not) and no noisier than 1.5 times
+    theirs (window streaks or texture there may hide a dot from the sweep and the local search). An empty
+    plate line is evidence of the plate's edge only there."""
+    con, shape = loc.con, loc.clean.shape
+    top = float(np.max(loc.clean))
+
+    def reduced(p):
+        r = np.rint(con.to_reduced(p)).astype(int)
+        return np.clip(r[:, 1], 0, con.z.shape[0] - 1), np.clip(r[:, 0], 0, con.z.shape[1] - 1)
+    ry, rx = reduced(table[["w1", "w2"]].to_numpy())
+    bg, spread = con.background[ry, rx], float(np.median(con.spread[ry, rx]))
+    pad = 3 * 1.4826 * float(np.median(np.abs(bg - np.median(bg)))) + 3 * spread
+    lo, hi = float(bg.min()) - pad, float(bg.max()) + pad
+
+    def seen(p: np.ndarray) -> np.ndarray:
+        ok = inside_image(p, shape, margin_px)
+        y, x = reduced(p)
+        level = -con.signed[y, x] if con.dark else con.signed[y, x]
+        return (ok & (con.background[y, x] >= lo) & (con.background[y, x] <= hi) & (level < 0.98 * top)
+                & (con.spread[y, x] <= 1.5 * spread))
+    return seen
+
+
 def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px) -> ImageDots:
     """Steps 3-5 of the module docstring on located dots: centres, numbering, report."""
     table, pl, dropped = _table(loc, method, anchoring["two_level"])
-    reason, markers = _candidate_reasons(loc.con, loc.cand, loc.fit)
+    reason, markers = _candidate_reasons(loc.clean, loc.con, loc.cand, loc.fit)
     radius = dot_diameter_px / 2 if dot_diameter_px else _dot_radius(loc)
     src_all = table["_src"].to_numpy()
-    table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, shape=loc.clean.shape,
-                                              margin_px=radius + 1, **anchoring)
+    table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, seen=_seeable(loc, table, radius + 1),
+                                              **anchoring)
     outside = np.setdiff1d(src_all, table["_src"].to_numpy())
     dropped.update({int(k): "outside the plate (beyond its rows × cols)" for k in outside if k >= 0})
     nodes = loc.searched[0]
@@ -484,7 +517,8 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
 
 def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict]:
     """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
-    refined by every estimator, compared by :func:`slmlab.images.lattice.lattice_residual_px`; an edge
+    refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
+    glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`, an edge
     estimator (the smoother of ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times
     the moments' residual, else ``moments``. Returns the method and the residual [px] of each."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
@@ -492,9 +526,15 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
         return "moments", {m: float("nan") for m in METHODS}
-    res = {m: lattice_residual_px(_table(loc, m, anchoring["two_level"])[0]) for m in METHODS}
-    edge = min(("ellipse", "edges"), key=lambda m: res[m] if np.isfinite(res[m]) else np.inf)
-    ok = np.isfinite(res[edge]) and np.isfinite(res["moments"])
+    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS}
+    res = {m: lattice_residual_px(t) for m, t in tables.items()}
+    most = max(len(t) for t in tables.values())
+    kept = [m for m in METHODS if len(tables[m]) == most]      # an estimator whose centres leave the lattice
+    edge = min((m for m in ("ellipse", "edges") if m in kept), key=lambda m: res[m] if np.isfinite(res[m]) else np.inf,
+               default=None)
+    if "moments" not in kept:
+        return edge, res
+    ok = edge is not None and np.isfinite(res[edge]) and np.isfinite(res["moments"])
     return (edge if ok and res[edge] < AUTO_EDGE_RATIO * res["moments"] else "moments"), res
 
 

@@ -193,7 +193,7 @@ def _predicted_neighbours(x0: np.ndarray, u: np.ndarray, v: np.ndarray, p: np.nd
 
 
 def _central_steps(tree: cKDTree, xy: np.ndarray, x0: np.ndarray, u: np.ndarray, v: np.ndarray):
-    """Steps ``u, v`` as half the difference of the opposite neighbours (where both are found within 0.45 of
+    """Steps ``u, v`` as half the difference of the opposite neighbours (where both are found within 0.6 of
     a step), and the offset ``p`` of those neighbours from a plain lattice: half their sum. A two-level
     plate's other level is offset by its parallax, which the differences cancel and the sums measure."""
     step = np.minimum(np.hypot(*u.T), np.hypot(*v.T))
@@ -201,7 +201,7 @@ def _central_steps(tree: cKDTree, xy: np.ndarray, x0: np.ndarray, u: np.ndarray,
     for s in (u, v):
         d, j = tree.query(x0 - s)
         back = xy[j] - x0
-        have = d < 0.45 * step
+        have = d < 0.6 * step
         out.append((np.where(have[:, None], (s - back) / 2, s), np.where(have[:, None], (s + back) / 2, 0.0), have))
     (uc, pu, hu), (vc, pv, hv) = out
     p = np.where((hu & hv)[:, None], (pu + pv) / 2, 0.0)
@@ -503,19 +503,18 @@ def plate_lattice(model: LatticeModel, ab: np.ndarray, *, two_level: bool = Fals
     return PlateLattice(i[:, 0].astype(int), i[:, 1].astype(int), two_level, model, m)
 
 
-def _line_inside(pl: PlateLattice, axis: int, k: int, other: tuple[int, int], shape, margin: float) -> bool:
-    """Whether the whole plate line ``i[axis] = k`` (``other``: the range of the other index) is predicted
-    inside the image: a line that would be seen but holds no dot is not part of the plate."""
+def _line_seen(pl: PlateLattice, axis: int, k: int, other: tuple[int, int], seen) -> bool:
+    """Whether the whole plate line ``i[axis] = k`` (``other``: the range of the other index) is where the image
+    would show a dot (``seen``): a line that would be seen but holds no dot is not part of the plate."""
     o = np.arange(other[0], other[1] + 1)
     k = np.full(len(o), k)
-    p = pl.predict(k, o) if axis == 0 else pl.predict(o, k)
-    return bool(inside_image(p, shape, margin).all())
+    return bool(seen(pl.predict(k, o) if axis == 0 else pl.predict(o, k)).all())
 
 
-def _window(pl: PlateLattice, n: int, axis: int, shape, margin: float) -> tuple[int | None, str]:
+def _window(pl: PlateLattice, n: int, axis: int, seen) -> tuple[int | None, str]:
     """First index of the ``n`` plate lines along ``axis``: the window holding most dots, less any line it
-    holds that would be wholly in the image yet empty; ``None`` and why if two windows tie (the plate's
-    position along that axis is ambiguous)."""
+    holds that would be seen yet is empty; ``None`` and why if two windows tie (the plate's position along
+    that axis is ambiguous)."""
     i, j = (pl.i1, pl.i2) if axis == 0 else (pl.i2, pl.i1)
     other = (int(j.min()), int(j.max()))
     lo, hi = int(i.min()), int(i.max())
@@ -525,7 +524,7 @@ def _window(pl: PlateLattice, n: int, axis: int, shape, margin: float) -> tuple[
     for s in starts:
         held = sum(counts[k - lo] for k in range(s, s + n) if lo <= k <= hi)
         empty = sum(1 for k in range(s, s + n) if not (lo <= k <= hi and counts[k - lo])
-                    and _line_inside(pl, axis, k, other, shape, margin))
+                    and _line_seen(pl, axis, k, other, seen))
         scores.append(held - 1000 * empty)
     scores = np.asarray(scores)
     best = np.flatnonzero(scores == scores.max())
@@ -534,17 +533,19 @@ def _window(pl: PlateLattice, n: int, axis: int, shape, margin: float) -> tuple[
     return int(starts[best[0]]), ""
 
 
-def number_plate(pl: PlateLattice, rows: int, cols: int, shape: tuple[int, int], margin_px: float):
+def number_plate(pl: PlateLattice, rows: int, cols: int, seen):
     """Plate ``[row, col]`` (1-based) of the dots of a plate of ``rows × cols`` (whole in view, or cut by the
     image; any dots lost): ``col`` along ``i1`` unless the lattice fits the plate only the other way round (a
-    non-square plate turned by 90°). Returns ``(row, col)`` (``None`` if ambiguous), a mask of the dots inside
-    the plate, a note (why not, or how), and the plate's window ``(i1 min, i1 max, i2 min, i2 max)``."""
+    non-square plate turned by 90°). ``seen(points (n, 2) [px])``: where the image would show a dot (inside it,
+    and not lost in a saturated or otherwise unlike region): an empty line there is evidence, elsewhere not.
+    Returns ``(row, col)`` (``None`` if ambiguous), a mask of the dots inside the plate, a note (why not, or
+    how), and the plate's window ``(i1 min, i1 max, i2 min, i2 max)``."""
     i = np.column_stack([pl.i1, pl.i2])
     spans = i.max(axis=0) - i.min(axis=0) + 1
     swap = rows != cols and (spans[0] > cols or spans[1] > rows) and spans[0] <= rows and spans[1] <= cols
     n1, n2 = (rows, cols) if swap else (cols, rows)
-    s1, why1 = _window(pl, n1, 0, shape, margin_px)
-    s2, why2 = _window(pl, n2, 1, shape, margin_px)
+    s1, why1 = _window(pl, n1, 0, seen)
+    s2, why2 = _window(pl, n2, 1, seen)
     if s1 is None or s2 is None:
         return None, np.ones(len(i), bool), why1 or why2, None
     inside = (i[:, 0] >= s1) & (i[:, 0] < s1 + n1) & (i[:, 1] >= s2) & (i[:, 1] < s2 + n2)
