@@ -21,6 +21,7 @@ from . import datasets
 from .bench import run as run_bench
 from .errors import SlmlabError
 from .gripping import grip
+from .images.centres import METHODS
 from .images.imageset import extract_set
 from .io import IMAGE_COLUMNS, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
@@ -69,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("extract", help="find and index the dots in images/ and write points.csv")
     e.add_argument("cal_dir", type=Path)
-    e.add_argument("--method", default="auto", choices=["auto", "moments", "ellipse"],
+    e.add_argument("--method", default="auto", choices=["auto", *METHODS],
                    help="sub-pixel centre estimator of dot plates (auto: chosen per plate and view, see the notes)")
 
     sub.add_parser("models", help="list the vision models")
