@@ -21,15 +21,16 @@ from . import datasets
 from .bench import run as run_bench
 from .errors import SlmlabError
 from .gripping import grip
+from .images.centres import METHODS
 from .images.imageset import extract_set
-from .io import IMAGE_COLUMNS, CalibrationSet, read_points, read_set, write_csv, write_set
+from .io import IMAGE_COLUMNS, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
 from .models.auto import selection_table
 from .paper.evaluation import evaluate
 from .studies.extraction import extraction_errors, extraction_summary
 from .virtual.designs import DESIGNS, simulate_design
 from .virtual.presets import preset
-from .virtual.render import render_set
+from .virtual.render import check_renderable, render_set
 from .virtual.rigs import rig_by_name
 from .virtual.sessions import paper_test, validation_session
 from .virtual.simulate import simulate_set
@@ -61,14 +62,15 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--design", default=None, help="what the rig images: zstack-2 ... zstack-13, stage-sequences, "
                    "stepped-target, two-level, two-level-2z, two-level-3z, charuco-stack")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG")
+    s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG (a rig's with its "
+                   "camera's degradations, and a stage.csv naming them; not the stepped target)")
     g = s.add_mutually_exclusive_group()
     g.add_argument("--test", type=int, default=1, help="calibration test 1-5 of the paper's Table 3 (default 1)")
     g.add_argument("--validation", action="store_true", help="the §6 validation run instead of a calibration test")
 
     e = sub.add_parser("extract", help="find and index the dots in images/ and write points.csv")
     e.add_argument("cal_dir", type=Path)
-    e.add_argument("--method", default="auto", choices=["auto", "moments", "ellipse"],
+    e.add_argument("--method", default="auto", choices=["auto", *METHODS],
                    help="sub-pixel centre estimator of dot plates (auto: chosen per plate and view, see the notes)")
 
     sub.add_parser("models", help="list the vision models")
@@ -118,6 +120,8 @@ def _simulate(a) -> int:
     else:
         session = validation_session() if a.validation else paper_test(a.test)
         cal = simulate_set(preset(a.preset), session, seed=a.seed)
+    if a.images:
+        check_renderable(cal)
     write_set(a.out_dir, cal)
     n = cal.points[["wl1", "wr1"]].notna().all(axis=1).sum()
     print(f"wrote {a.out_dir}: {len(cal.points)} rows ({n} seen in both views), "
@@ -137,7 +141,7 @@ def _extract(a) -> int:
     n_both = int(points[["wl1", "wr1"]].notna().all(axis=1).sum())
     print(f"wrote {a.cal_dir / 'points.csv'}: {len(points)} dots ({n_both} in both views)")
     if old is not None and old.truth is not None and "simulator" in old.meta:
-        s = extraction_summary(extraction_errors(points, CalibrationSet(points, old.meta, old.truth)))
+        s = extraction_summary(extraction_errors(points, old))
         print(f"against truth.csv: {s['found_and_indexed_percent']:.2f} % of {s['visible']} visible dots found and "
               f"indexed, {s['misindexed']} misindexed; centre RMS {s['rms_in_focus_px']:.4f} px in focus, "
               f"{s['rms_depth_of_field_px']:.4f} px over the depth of field")

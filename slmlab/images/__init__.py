@@ -1,11 +1,13 @@
 """Images as a camera writes them, turned into dot centres: the input of every model (paper §3).
 
 ``dots``
-    finding a plate's dots and refining their centres to sub-pixel accuracy;
+    finding a plate's dots: a threshold sweep over the local contrast, markers, hot pixels, the local search;
+``centres``
+    their sub-pixel centres (``moments``, ``ellipse``, ``edges``);
 ``lattice``
-    numbering them on the plate's lattice (its size, or its markers);
+    numbering them on the plate's fitted lattice (its size, or its markers);
 ``extract``
-    one image, end to end;
+    one image, end to end, with a report of what was found and rejected and why;
 ``boards``
     the targets OpenCV detects itself: chessboards, circle grids, ChArUco boards;
 ``imageset``

@@ -1,45 +1,55 @@
-"""Finding the dots of a calibration plate in one image and refining their centres to sub-pixel accuracy
-(the paper's §3 input; numbering them is :mod:`slmlab.images.lattice`).
+"""Finding the dots of a calibration plate in one image (the paper's §3 input; their sub-pixel centres are
+:mod:`slmlab.images.centres`, their numbering :mod:`slmlab.images.lattice`).
 
-For images as a camera writes them (8 or 16 bit, any format OpenCV reads, dark dots on a bright plate or
-bright dots on black), OpenCV throughout:
+Nothing here depends on one threshold, one dot size or roundness, so that any plate a person can see is found
+(8, 12 or 16 bit, dark dots on a bright plate or bright dots on black, oblique ellipses, defocus, low contrast,
+gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camera's text strip):
 
-1. **Polarity**: from the plate's ``"dots"`` key, or decided from the image (:func:`dot_polarity`: the dots
-   are the minority class of an Otsu split).
-2. **Background and dot level** (illumination, vignetting): a min (max) filter on an 8× reduced image gives
-   the background under the dots, a max (min) filter over a larger window the level of the dots (zero for
-   dark dots). Pixels beyond ``threshold`` of the way from the background to the dot level are dot pixels.
-3. **Blobs**: external contours of the dot mask (``cv2.findContours``). Blobs touching the image border
-   (partly visible dots), too small or large against the median, or not round enough are rejected; large
-   enough polygons are kept as **markers** (triangles, squares, a frame around a dot), dots with a hole as
-   donut markers.
-4. **Sub-pixel centres**, two estimators, both flat-fielded by a background plane fitted per dot on a ring
-   around it (so vignetting does not pull the centre):
-
-   * ``moments``: intensity-weighted centroid of the dot's contrast (``1 − I/B`` for dark dots, ``I − B``
-     for bright ones) inside an anti-aliased circular window, iterated so the window is centred on the
-     estimate;
-   * ``ellipse``: half-contrast crossings along 48 rays, fitted by an ellipse (algebraic least squares).
-     It uses only the dot's edge, so a textured or scratched dot (real plates) does not pull it.
-
-   Measured on rendered sets (``python -m slmlab bench``, notebook 02) ``moments`` is the more accurate on
-   uniform dots, and the default.
+1. **Local contrast** (:func:`local_contrast`): the image is reduced by a whole factor to at most
+   :data:`SWEEP_SIDE_PX` a side and smoothed (Gaussian, 1 reduced px); on a mesh of cells (1/16 of the
+   image's smaller side) the background is the cells' median and the spread the half-width of the dot-free
+   side of their histogram (median minus 16th percentile for bright dots); both meshes are median-filtered
+   over 3 × 3 cells and interpolated. ``z = ±(I − background) / spread`` is the contrast in noise units,
+   dots positive, whatever the illumination, offset, bit depth or a bright region beside the plate.
+2. **Threshold sweep** (:func:`sweep`), OpenCV's SimpleBlobDetector idea on ``z`` instead of the raw image
+   (whose one level per image a bright region or a gradient defeats): :data:`LEVELS` levels from
+   :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric); each level's connected components
+   are tracked to the level below by containment (their centroid pixel), or by the nearest centroid for
+   rings. A blob seen at two levels or more is a candidate; its outline is read at the highest level at or
+   below half its peak. Which candidates are the plate's dots is decided by their lattice
+   (:func:`slmlab.images.lattice.fit_lattice`), not by their size or shape.
+3. **Markers** (:func:`marker_kind`): candidates off the lattice whose outline is a triangle, a square or a
+   square frame around a dot (:func:`polygon_kind`).
+4. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known.
+5. **Local search** (:func:`search_missing`): a node the lattice predicts but the sweep missed is searched
+   on its own local background by a matched filter of the dots' size, and taken only if it stands out of
+   the noise and looks like the plate's own dots.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 
-__all__ = ["METHODS", "Blobs", "Marker", "read_image", "as_8bit", "dot_polarity", "estimate_background",
-           "find_blobs", "refine_moments", "refine_ellipse"]
+__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "read_image",
+           "as_float", "as_8bit", "dot_polarity",
+           "gather_patches", "Contrast", "reduction", "local_contrast", "Candidates", "sweep", "Marker", "polygon_kind",
+           "marker_kind", "clean_hot_pixels", "search_missing"]
 
-METHODS = ("moments", "ellipse")
+#: the sweep's lowest level [noise σ of the smoothed, reduced image]
+LOWEST_SIGMA = 3.0
+#: the number of levels of the sweep
+LEVELS = 6
+#: least normalised cross-correlation with the dots' template of a dot found by the local search
+NCC_MIN = 0.5
+#: the largest side of the reduced image the sweep runs on [px]
+SWEEP_SIDE_PX = 700
 
 
 # ------------------------------------------------------------------------------------------ reading
@@ -70,7 +80,8 @@ def read_image(path: str | Path) -> np.ndarray:
     return img
 
 
-def _as_float(img: np.ndarray) -> np.ndarray:
+def as_float(img: np.ndarray) -> np.ndarray:
+    """The image as ``float32`` (no copy if it is one)."""
     return img if img.dtype == np.float32 else img.astype(np.float32)
 
 
@@ -79,7 +90,7 @@ def as_8bit(img: np.ndarray) -> np.ndarray:
     their 0.1 to 99.9 percentile (robust to a few hot pixels)."""
     if img.dtype == np.uint8:
         return img
-    f = _as_float(img)
+    f = as_float(img)
     lo, hi = np.percentile(f[::4, ::4], [0.1, 99.9])
     return cv2.convertScaleAbs(f, alpha=255.0 / max(hi - lo, 1e-6), beta=-lo * 255.0 / max(hi - lo, 1e-6))
 
@@ -93,23 +104,257 @@ def dot_polarity(img: np.ndarray) -> bool:
     return bool(np.mean(small > t) > 0.5)
 
 
-# ------------------------------------------------------------------------------------------ detection
-def estimate_background(img: np.ndarray, *, dark: bool = True, reduce: int = 8, window_px: int = 160) -> np.ndarray:
-    """Smooth illumination under the dots [grey levels, float32], by a max (min) filter at 1/``reduce``
-    scale over ``window_px`` (larger than a dot)."""
-    return _filtered(img, dark, reduce, window_px)
-
-
-def _filtered(img: np.ndarray, high: bool, reduce: int, window_px: int) -> np.ndarray:
+def gather_patches(img: np.ndarray, centre: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Square patches ``(n, S, S)`` of ``img`` around the integer points nearest ``centre`` (edge-clamped)
+    and those integer points ``(n, 2)``."""
+    base = np.rint(centre).astype(int)
     h, w = img.shape
-    small = cv2.resize(_as_float(img), (max(w // reduce, 1), max(h // reduce, 1)), interpolation=cv2.INTER_AREA)
-    k = max(3, int(window_px / reduce) | 1)
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (k, k))
-    small = cv2.dilate(small, kernel) if high else cv2.erode(small, kernel)
-    small = cv2.GaussianBlur(small, (0, 0), k / 2)
-    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    off = np.arange(-half, half + 1)
+    rows = np.clip(base[:, 1, None] + off[None, :], 0, h - 1)
+    cols = np.clip(base[:, 0, None] + off[None, :], 0, w - 1)
+    return img[rows[:, :, None], cols[:, None, :]], base
 
 
+# ------------------------------------------------------------------------------------------ contrast
+@dataclass
+class Contrast:
+    """Local contrast of the reduced image.
+
+    Attributes
+    ----------
+    z
+        ``±(I − background) / spread`` of the reduced, smoothed image [noise σ], dots positive.
+    scale
+        reduction factor: full-resolution pixels per reduced pixel.
+    background, spread
+        the interpolated mesh statistics on the reduced image [grey levels].
+    signed
+        the reduced, smoothed image, negated for dark dots (dots positive) [grey levels].
+    dark
+        the dots are darker than the plate.
+    """
+
+    z: np.ndarray
+    scale: int
+    background: np.ndarray
+    spread: np.ndarray
+    signed: np.ndarray
+    dark: bool = False
+
+    def to_full(self, xy: np.ndarray) -> np.ndarray:
+        """Reduced-image coordinates ``(n, 2)`` → full-resolution ones [px] (pixel centres at integers)."""
+        return np.asarray(xy, float) * self.scale + (self.scale - 1) / 2
+
+    def to_reduced(self, xy: np.ndarray) -> np.ndarray:
+        """Full-resolution coordinates ``(n, 2)`` [px] → reduced-image ones."""
+        return (np.asarray(xy, float) - (self.scale - 1) / 2) / self.scale
+
+
+def reduction(shape: tuple[int, int]) -> int:
+    """Reduction factor of the sweep image: the image's larger side over :data:`SWEEP_SIDE_PX`, rounded up."""
+    return max(1, int(np.ceil(max(shape) / SWEEP_SIDE_PX)))
+
+
+def _mesh_statistics(small: np.ndarray, cell: int, dark: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Background (median) and spread (half-width of the dot-free side of the histogram: median minus the
+    16th percentile for bright dots, 84th minus median for dark ones) per cell of ``cell`` px, median-
+    filtered over 3 × 3 cells and interpolated to the image [grey levels]."""
+    hs, ws = small.shape
+    nr, nc = max(1, hs // cell), max(1, ws // cell)
+    y0, x0 = (hs - nr * cell) // 2, (ws - nc * cell) // 2
+    st = max(1, cell // 24)  # every st-th pixel of a cell: ~600 samples per cell
+    block = small[y0:y0 + nr * cell, x0:x0 + nc * cell].reshape(nr, cell, nc, cell)[:, ::st, :, ::st]
+    block = block.transpose(0, 2, 1, 3).reshape(nr, nc, -1)
+    n = block.shape[-1]
+    ks = [int(0.1587 * n), n // 2, int(0.8413 * n)]
+    p = np.partition(block, ks, axis=-1)[..., ks]
+    bg = np.ascontiguousarray(p[..., 1], dtype=np.float32)
+    sd = np.ascontiguousarray(p[..., 2] - p[..., 1] if dark else p[..., 1] - p[..., 0], dtype=np.float32)
+    if min(nr, nc) >= 3:
+        bg, sd = cv2.medianBlur(bg, 3), cv2.medianBlur(sd, 3)
+    lo, hi = np.percentile(small[::4, ::4], [0.1, 99.9])
+    spread_all = float(hi - lo)
+    sd = np.maximum(sd, max(1e-3 * spread_all, 0.05 * float(np.median(sd)), 1e-6))
+
+    def up(m):  # cell values at cell centres, linear in between, replicated beyond the outer centres
+        m = cv2.resize(m, (nc * cell, nr * cell), interpolation=cv2.INTER_LINEAR)
+        return cv2.copyMakeBorder(m, y0, hs - y0 - nr * cell, x0, ws - x0 - nc * cell, cv2.BORDER_REPLICATE)
+    return up(bg), up(sd)
+
+
+def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
+    """The local-contrast image of ``img`` (module docstring, step 1) for dark or bright dots."""
+    f = img if img.dtype == np.float32 else img.astype(np.float32)
+    h, w = f.shape
+    r = reduction(f.shape)
+    # crop to whole blocks so that the reduction is exactly r (reduced pixel i covers pixels r·i … r·i + r − 1)
+    small = cv2.resize(f[:h // r * r, :w // r * r], (w // r, h // r), interpolation=cv2.INTER_AREA) if r > 1 else f
+    small = cv2.GaussianBlur(small, (0, 0), 1.0)
+    cell = max(8, int(min(h, w) / 16 / r))
+    bg, sd = _mesh_statistics(small, cell, dark)
+    z = (small - bg) / sd
+    return Contrast(-z if dark else z, r, bg, sd, -small if dark else small, dark)
+
+
+# ------------------------------------------------------------------------------------------ sweep
+@dataclass
+class Candidates:
+    """Blobs kept over the threshold sweep, in full-resolution pixels.
+
+    Attributes
+    ----------
+    xy
+        centroids ``(n, 2)`` [px] at the blob's reference level (the highest at or below half its peak).
+    area
+        area at the reference level [px²].
+    size
+        bounding box ``(n, 2)`` (width, height) at the reference level [px].
+    levels
+        number of consecutive sweep levels the blob was seen at.
+    peak
+        its peak contrast: the highest level it was seen at, or the contrast at its centroid if higher
+        [noise σ].
+    border, hole
+        the blob touches the image border; its centroid is outside it (a ring: a donut marker).
+    level
+        the reference level [noise σ].
+    born
+        the sweep level index the blob was first seen at (0: a blob of its own at the lowest level; higher:
+        split off a larger blob, such as a fragment of a textured dot).
+    low
+        the level it was first seen at [noise σ] (its widest outline: for thin markers).
+    noise
+        blobs seen at one level only (not candidates; counted).
+    """
+
+    xy: np.ndarray
+    area: np.ndarray
+    size: np.ndarray
+    levels: np.ndarray
+    peak: np.ndarray
+    border: np.ndarray
+    hole: np.ndarray
+    level: np.ndarray
+    born: np.ndarray
+    low: np.ndarray
+    noise: int = 0
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+def _ladder(z: np.ndarray, levels: int) -> np.ndarray:
+    """Geometric threshold ladder from :data:`LOWEST_SIGMA` to the 99.95th percentile of ``z`` (at least
+    4 × the lowest) [noise σ]."""
+    top = float(np.percentile(z[::3, ::3], 99.95))
+    top = min(max(top, 4 * LOWEST_SIGMA), 1e4)
+    return LOWEST_SIGMA * (top / LOWEST_SIGMA) ** (np.arange(levels) / (levels - 1))
+
+
+@dataclass
+class _Level:
+    """The blobs of one sweep level: centroids ``(m, 2)``, stats ``(m, 5)``, track ids ``(m,)``, and the
+    label image with the map from its labels to the blobs (``-1``: too small, dropped)."""
+
+    xy: np.ndarray
+    st: np.ndarray
+    ids: np.ndarray
+    labels: np.ndarray
+    index: np.ndarray
+
+
+def _components(z: np.ndarray, t: float, min_area: int = 2) -> _Level:
+    """Components of ``z > t`` with at least ``min_area`` px (track ids not yet set)."""
+    # Grana's block-based labelling: twice as fast here as the default's statistics pass
+    _, labels, st, cen = cv2.connectedComponentsWithStatsWithAlgorithm(cv2.compare(z, float(t), cv2.CMP_GT), 8,
+                                                                      cv2.CV_32S, cv2.CCL_BBDT)
+    keep = st[:, cv2.CC_STAT_AREA] >= min_area
+    keep[0] = False
+    index = np.full(len(st), -1)
+    index[keep] = np.arange(int(keep.sum()))
+    return _Level(cen[keep], st[keep], np.full(int(keep.sum()), -1), labels, index)
+
+
+def _own_centroid(cur: _Level) -> np.ndarray:
+    """Whether each blob's centroid pixel belongs to it (not so for a ring, a frame or a crescent)."""
+    h, w = cur.labels.shape
+    cx = np.clip(np.rint(cur.xy[:, 0]).astype(int), 0, w - 1)
+    cy = np.clip(np.rint(cur.xy[:, 1]).astype(int), 0, h - 1)
+    return cur.index[cur.labels[cy, cx]] == np.arange(len(cur.xy))
+
+
+def _track(prev: _Level | None, cur: _Level) -> None:
+    """Set the track ids of a level's blobs (``-1`` for new ones) from the level below. A blob whose centroid
+    pixel is its own continues the blob of the level below holding that pixel (thresholds nest, so that one
+    contains it; if it split, its largest part continues it); other blobs (rings, crescents) continue the
+    nearest blob not yet continued, within 0.6 of its radius (at least 1.5 px)."""
+    if prev is None or len(cur.xy) == 0 or len(prev.xy) == 0:
+        return
+    h, w = cur.labels.shape
+    cx = np.clip(np.rint(cur.xy[:, 0]).astype(int), 0, w - 1)
+    cy = np.clip(np.rint(cur.xy[:, 1]).astype(int), 0, h - 1)
+    parent = np.where(_own_centroid(cur), prev.index[prev.labels[cy, cx]], -1)
+    order = np.flatnonzero(parent >= 0)
+    order = order[np.argsort(-cur.st[order, cv2.CC_STAT_AREA], kind="stable")]
+    _, first = np.unique(parent[order], return_index=True)
+    win = order[first]
+    cur.ids[win] = prev.ids[parent[win]]
+    free = np.setdiff1d(np.arange(len(prev.xy)), parent[win])
+    rest = np.flatnonzero(cur.ids < 0)
+    if len(free) == 0 or len(rest) == 0:
+        return
+    d, j = cKDTree(prev.xy[free]).query(cur.xy[rest])
+    ok = np.flatnonzero(d < np.maximum(1.5, 0.6 * np.sqrt(prev.st[free[j], cv2.CC_STAT_AREA] / np.pi)))
+    ok = ok[np.argsort(d[ok], kind="stable")]
+    _, first = np.unique(j[ok], return_index=True)
+    cur.ids[rest[ok[first]]] = prev.ids[free[j[ok[first]]]]
+
+
+def sweep(con: Contrast, *, levels: int = LEVELS) -> Candidates:
+    """Blobs stable over a threshold sweep of the local contrast (module docstring, step 2)."""
+    ts = _ladder(con.z, levels)
+    recs, prev, next_id = [], None, 0
+    for k, t in enumerate(ts):
+        cur = _components(con.z, t)
+        _track(prev, cur)
+        new = cur.ids < 0
+        cur.ids[new] = next_id + np.arange(int(new.sum()))
+        next_id += int(new.sum())
+        recs.append(np.column_stack([cur.ids, np.full(len(cur.ids), k), cur.xy, cur.st, _own_centroid(cur)]))
+        prev = cur
+    rec = np.vstack(recs) if recs else np.empty((0, 10))
+    return _summarise(rec, ts, con)
+
+
+def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast) -> Candidates:
+    """Per-track candidates from the sweep's records ``(id, level, cx, cy, x, y, w, h, area, own centroid)``."""
+    rec = rec[np.lexsort((rec[:, 1], rec[:, 0]))]
+    ids, start, count = np.unique(rec[:, 0].astype(int), return_index=True, return_counts=True)
+    first = rec[start, 1].astype(int)
+    last = first + count - 1
+    noise = int((count < 2).sum())
+    keep = count >= 2
+    start, first, last, count = start[keep], first[keep], last[keep], count[keep]
+    # the peak: the highest level passed, or the contrast at the last level's centroid if higher; the
+    # reference level is the highest at or below half of it (the outline a little outside the half level)
+    top = rec[start + count - 1]
+    hs, ws = con.z.shape
+    cx, cy = np.clip(np.rint(top[:, 2]).astype(int), 0, ws - 1), np.clip(np.rint(top[:, 3]).astype(int), 0, hs - 1)
+    peak = np.maximum(ts[last], con.z[cy, cx])
+    ref = np.clip(np.searchsorted(ts, peak / 2, side="right") - 1, first, last)
+    r = rec[start + ref - first]
+    area = r[:, 8]
+    x, y, w, h = r[:, 4], r[:, 5], r[:, 6], r[:, 7]
+    border = (x <= 0) | (y <= 0) | (x + w >= ws) | (y + h >= hs)
+    hole = r[:, 9] == 0
+    s = con.scale
+    return Candidates(con.to_full(r[:, 2:4]), area * s * s, np.column_stack([w, h]) * s, count, peak,
+                      border, hole, ts[ref], first, ts[first], noise)
+
+
+
+
+# ------------------------------------------------------------------------------------------ markers
 @dataclass
 class Marker:
     """A marker on the plate: ``kind`` (``'triangle'``, ``'square'``, ``'frame'``: a frame around a dot) and
@@ -119,97 +364,14 @@ class Marker:
     centre: tuple[float, float]
 
 
-@dataclass
-class Blobs:
-    """Candidate dots of one image: first-guess centres ``(n, 2)`` [px], areas [px²], equivalent radii [px],
-    whether each has a hole (a donut marker), the polygon markers found, and the count of rejected blobs."""
-
-    centres: np.ndarray
-    areas: np.ndarray
-    radii: np.ndarray
-    holes: np.ndarray
-    rejected: int = 0
-    markers: list = field(default_factory=list)
-
-
-def find_blobs(img: np.ndarray, *, dark: bool = True, threshold: float = 0.6, background: np.ndarray | None = None,
-               min_area_px: float = 12.0) -> Blobs:
-    """Dots as external contours of the pixels beyond ``1 − threshold`` of the way from the background to
-    the dots' level (for dark dots, whose level is zero: darker than ``threshold`` × background).
-
-    Blobs touching the border, much smaller or larger than the median, or not round are rejected (counted in
-    ``rejected``); among the rejected, polygons of about a dot's size are returned as markers.
-    """
-    f = _as_float(img)
-    bg = estimate_background(f, dark=dark) if background is None else background
-    if dark:
-        mask = f < threshold * bg
-    else:  # bright dots on a dark plate: the dots' level varies (illumination, reflectance); take it locally
-        fg = _filtered(f, True, 8, 480)
-        floor = 0.5 * float(np.percentile((f - bg)[::4, ::4], 99.5))
-        mask = f > bg + (1.0 - threshold) * np.maximum(fg - bg, floor)
-    mask = mask.astype(np.uint8)
-    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
-    h, w = img.shape
-    cents, areas, holes, shapes = [], [], [], []
-    rejected = 0
-    if hierarchy is not None:
-        hier = hierarchy[0]
-        for k, cnt in enumerate(contours):
-            if hier[k, 3] != -1:  # a hole of another blob
-                continue
-            x, y, bw, bh = cv2.boundingRect(cnt)
-            area = cv2.contourArea(cnt)
-            if area < min_area_px or x <= 0 or y <= 0 or x + bw >= w or y + bh >= h:
-                rejected += 1
-                continue
-            fill = area / (bw * bh)
-            m = cv2.moments(cnt)
-            if m["m00"] <= 0:
-                rejected += 1
-                continue
-            centre = (m["m10"] / m["m00"], m["m01"] / m["m00"])
-            hole = _largest_hole(contours, hier, k) >= 0.03 * area  # a donut's or a frame's, not texture
-            kind = _polygon_kind(cnt, area, hole)
-            if kind is None and 0.6 < fill < 0.95 and 0.5 < bw / bh < 2.0:
-                cents.append(centre)
-                areas.append(area)
-                holes.append(hole)
-                continue
-            rejected += 1
-            if kind is not None:
-                shapes.append((kind, centre, area))
-    cents = np.asarray(cents, float).reshape(-1, 2)
-    areas = np.asarray(areas, float)
-    holes = np.asarray(holes, bool)
-    markers = []
-    if len(areas):
-        med = np.median(areas)
-        ok = (areas > 0.5 * med) & (areas < 1.6 * med)  # two touching blobs (dust on a dot) are ~2x
-        rejected += int((~ok).sum())
-        cents, areas, holes = cents[ok], areas[ok], holes[ok]
-        markers = [Marker(kind, centre) for kind, centre, area in shapes
-                   if (0.3 * med < area < 4.0 * med) or kind == "frame"]
-    return Blobs(cents, areas, np.sqrt(areas / np.pi), holes, rejected, markers)
-
-
-def _largest_hole(contours, hier, k: int) -> float:
-    """Area [px²] of the largest hole of contour ``k`` (0 without one)."""
-    best, child = 0.0, hier[k, 2]
-    while child != -1:
-        best = max(best, cv2.contourArea(contours[child]))
-        child = hier[child, 0]
-    return best
-
-
-def _polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
+def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     """``'triangle'``, ``'square'`` or ``'frame'`` (a square outline around a dot) for a contour large
-    enough to show its shape (≥ 150 px²); ``None`` for anything else (a dot, dust).
+    enough to show its shape (≥ 100 px², read at full resolution); ``None`` for anything else (a dot, dust).
 
     By two fills that an affine view leaves unchanged: of the smallest enclosing triangle (about 0.9 for a
     triangle, ``π/3√3`` = 0.60 for any ellipse, 0.5 for a square) and of the smallest enclosing rectangle
     (about 1 for a square, ``π/4`` for any ellipse)."""
-    if area < 150:
+    if area < 100:
         return None
     hull = cv2.convexHull(cnt)
     (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
@@ -223,165 +385,216 @@ def _polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     return "square" if square else None
 
 
-# ------------------------------------------------------------------------------------------ sub-pixel
-def _gather(img: np.ndarray, base: np.ndarray, half: int) -> np.ndarray:
-    """Square patches ``(n, S, S)`` [float32] around integer centres ``base`` (edge-clamped)."""
+def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> str | None:
+    """Shape of candidate ``k`` (``'triangle'``, ``'square'``, ``'frame'`` or ``None``) by :func:`polygon_kind`
+    on its outline at ``level`` [noise σ], read on the full-resolution image (lightly smoothed) against the
+    local background and spread at the candidate: on the reduced image a small dot's outline is a polygon of
+    a few pixels, which may pass for a square."""
+    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+    p, base = gather_patches(img, cand.xy[k:k + 1], half)
+    rx, ry = np.clip(np.rint(con.to_reduced(cand.xy[k])).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
+    z = (cv2.GaussianBlur(p[0].astype(np.float32), (0, 0), 1.0) - con.background[ry, rx]) / con.spread[ry, rx]
+    contours, hier = cv2.findContours(((-z if con.dark else z) > level).astype(np.uint8), cv2.RETR_CCOMP,
+                                      cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None
+    outer = [c for c, hh in zip(contours, hier[0]) if hh[3] == -1]
+    cnt = max(outer, key=cv2.contourArea).astype(np.float32)
+    area = cv2.contourArea(cnt)
+    holes = [cv2.contourArea(c) for c, hh in zip(contours, hier[0]) if hh[3] != -1]
+    return polygon_kind(cnt, area, bool(holes) and max(holes) >= 0.03 * area)
+
+
+# ------------------------------------------------------------------------------------------ hot pixels
+def _stand_out(img: np.ndarray, ring: np.ndarray, sigma: float) -> np.ndarray:
+    """Mask (``uint8``, 255 where true) of pixels that exceed all their neighbours of ``ring`` (a 3 × 3
+    kernel) by more than 8 noise σ and by more than the neighbours' own range, or fall below them so
+    (OpenCV's saturating arithmetic and masks: the whole image is touched a few times only)."""
+    hi, lo = cv2.dilate(img, ring), cv2.erode(img, ring)
+    if img.dtype == np.float32:
+        up, down, span = img - hi, lo - img, hi - lo
+    else:
+        up, down, span = cv2.subtract(img, hi), cv2.subtract(lo, img), cv2.subtract(hi, lo)
+    m = [cv2.compare(a, b, cv2.CMP_GT) for a, b in ((up, 8 * sigma), (up, span), (down, 8 * sigma), (down, span))]
+    return cv2.bitwise_or(cv2.bitwise_and(m[0], m[1]), cv2.bitwise_and(m[2], m[3]))
+
+
+def _positions(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the non-zero pixels of a ``uint8`` mask."""
+    p = cv2.findNonZero(mask)
+    if p is None:
+        return np.empty(0, int), np.empty(0, int)
+    return p[:, 0, 1].astype(int), p[:, 0, 0].astype(int)
+
+
+#: the eight neighbours (row, column offsets), and for each direction the two of them along it
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+_ALONG = [(3, 4), (1, 6), (0, 7), (2, 5)]
+
+
+def _hot_pairs(img: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
+    """Mask (``uint8``) of the pixels of adjacent hot (dead) pairs: those more than 8 σ off their 3 × 3 median that exceed (fall
+    below) their neighbours but the two along one direction by more than 8 σ and by more than those
+    neighbours' range. Tested only at the pixels off their median (few), not over the image."""
+    off = cv2.compare(cv2.absdiff(img, med), 8 * sigma, cv2.CMP_GT)
+    off[[0, -1], :], off[:, [0, -1]] = 0, 0
+    ys, xs = _positions(off)
+    out = np.zeros(img.shape, np.uint8)
+    if len(ys) == 0:
+        return out
+    nb = img[ys[:, None] + _NEIGHBOURS[:, 0], xs[:, None] + _NEIGHBOURS[:, 1]].astype(np.float32)  # (n, 8)
+    v = img[ys, xs].astype(np.float32)
+    sign = np.sign(v - med[ys, xs].astype(np.float32))
+    hit = np.zeros(len(ys), bool)
+    for pair in _ALONG:
+        rest = np.delete(nb, pair, axis=1) * sign[:, None]
+        up, span = v * sign - rest.max(axis=1), rest.max(axis=1) - rest.min(axis=1)
+        hit |= (up > 8 * sigma) & (up > span)
+    out[ys[hit], xs[hit]] = 255
+    return out
+
+
+def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
+
+    A pixel is hot if it exceeds all eight neighbours by more than 8 noise σ and by more than their own
+    range (dead: the same, below); if the image has such pixels, adjacent pairs are looked for too
+    (:func:`_hot_pairs`). The noise σ is the robust spread of the image less its 3 × 3 median, over the pixels
+    above the image's black floor (a dark-field image is mostly zeros, which would make it nil). Pixels
+    inside the ``dots`` (first centres ``(n, 2)`` [px], radius ``dot_radius_px``) are left alone: the
+    texture of a real dot is not a hot pixel, and the centre estimators see past a speck on a dot. Only
+    for dots of radius ≥ 2.5 px, whose own peak never stands out of its neighbours like that. Works in the
+    image's own type, so 8- and 16-bit images are not converted."""
+    if dot_radius_px < 2.5:
+        return img, 0
+    med = cv2.medianBlur(img, 3)
+    sub = med[::4, ::4]
+    d = (img[::4, ::4].astype(np.float32) - sub)[sub > sub.min()] if (sub > sub.min()).sum() > 100 else \
+        (img[::4, ::4].astype(np.float32) - sub).ravel()
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) + 1e-6
+    if img.dtype != np.float32:
+        sigma = max(sigma, 1.0)                  # at least one grey level
+    ring = np.ones((3, 3), np.uint8)
+    ring[1, 1] = 0
+    hot = _stand_out(img, ring, sigma)
+    if cv2.countNonZero(hot) == 0:
+        return img, 0
+    hot = cv2.bitwise_or(hot, _hot_pairs(img, med, sigma))
+    if dots is not None and len(dots):
+        inside = np.zeros(img.shape, np.uint8)
+        for x, y in np.rint(dots).astype(int):
+            cv2.circle(inside, (int(x), int(y)), int(np.ceil(dot_radius_px)), 255, -1)
+        hot = cv2.bitwise_and(hot, cv2.bitwise_not(inside))
+    ys, xs = _positions(hot)
+    if len(ys) == 0:
+        return img, 0
+    out = img.copy()                           # the 5 × 5 median (a pair's partner does not pull it)
     h, w = img.shape
-    off = np.arange(-half, half + 1)
-    rows = np.clip(base[:, 1, None] + off[None, :], 0, h - 1)
-    cols = np.clip(base[:, 0, None] + off[None, :], 0, w - 1)
-    return img[rows[:, :, None], cols[:, None, :]].astype(np.float32)
+    o = np.arange(-2, 3)
+    win = img[np.clip(ys[:, None, None] + o[None, :, None], 0, h - 1), np.clip(xs[:, None, None] + o[None, None, :], 0, w - 1)]
+    out[ys, xs] = np.median(win.reshape(len(ys), -1), axis=1).astype(img.dtype)
+    return out, len(ys)
 
 
-@dataclass
-class _Flat:
-    """Flat-fielded contrast patches ``±(1 − I/B)`` around integer centres ``base``; ``B`` is a plane
-    (coefficients ``coef`` on offsets ``ox, oy``) fitted on a ring of integer offsets, the same ring for all
-    dots, so one pseudo-inverse serves the whole image."""
-
-    base: np.ndarray
-    ox: np.ndarray
-    oy: np.ndarray
-    contrast: np.ndarray
-    coef: np.ndarray
+# ------------------------------------------------------------------------------------------ local search
+def _box_means(p: np.ndarray, k: int) -> np.ndarray:
+    """Means of patches ``p`` ``(n, S, S)`` over boxes of side ``2k + 1``, at the ``S − 2k`` positions where
+    the box fits (integral images)."""
+    cs = np.pad(p.cumsum(1).cumsum(2), ((0, 0), (1, 0), (1, 0)))
+    w, n = 2 * k + 1, p.shape[1] - 2 * k
+    return (cs[:, w:, w:] - cs[:, :n, w:] - cs[:, w:, :n] + cs[:, :n, :n]) / w ** 2
 
 
-def _flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool) -> _Flat:
-    half = int(np.ceil(ring_in + 5))
-    base = np.rint(centres).astype(int)
-    p = _gather(img, base, half)
+def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, pitch: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dot evidence near image points ``at`` ``(m, 2)`` [px], each on its own local background.
+
+    Around each point a square reaching a dot's diameter and 4 px beyond the search window, but not to the
+    next dot (so no neighbouring dot is in it), is taken from the reduced, smoothed image; its background
+    (:func:`_less_background`, outside the search window and the dot) is subtracted; the rest is averaged
+    over a box of the dot's size (a matched filter). Returns the filter's highest value within ``tol`` [px] of each
+    point [grey levels], its significance (over the filtered ring's robust spread) and where it is [px]."""
+    r = con.scale
+    rd, tr = radius / r, np.asarray(tol, float) / r
+    inner = int(np.ceil(rd + 3 + tr.max()))                      # the search window and the dot
+    half = max(min(int(pitch / r - rd - 1), inner + int(np.ceil(rd)) + 4), inner)
+    p, base = gather_patches(con.signed, con.to_reduced(at), half)
     off = np.arange(-half, half + 1, dtype=np.float32)
     oy, ox = np.meshgrid(off, off, indexing="ij")
-    d = np.hypot(ox, oy)
-    ring = (d > ring_in) & (d < ring_in + 4)
+    res = _less_background(p, ox, oy, inner)        # the dot, wherever the prediction's error puts it
+    k = max(1, int(round(0.8 * rd)))
+    box = _box_means(res, k)
+    o2 = off[k:len(off) - k]
+    dy, dx = np.meshgrid(o2, o2, indexing="ij")
+    pr = con.to_reduced(at)
+    ex, ey = (base[:, 0] - pr[:, 0])[:, None, None] + dx, (base[:, 1] - pr[:, 1])[:, None, None] + dy
+    ring2 = np.hypot(dx, dy) > rd + 1 + k
+    if ring2.sum() < 8:
+        ring2 = np.hypot(dx, dy) >= np.sort(np.hypot(dx, dy).ravel())[-8]
+    spread = 1.4826 * np.median(np.abs(box[:, ring2] - np.median(box[:, ring2], axis=1)[:, None]), axis=1) + 1e-6
+    flat = np.where(np.hypot(ex, ey) <= tr[:, None, None], box, -np.inf).reshape(len(at), -1)
+    j = np.argmax(flat, axis=1)
+    peak = flat[np.arange(len(at)), j]
+    jy, jx = np.divmod(j, len(o2))
+    where = np.column_stack([base[:, 0] + o2[jx], base[:, 1] + o2[jy]]).astype(float)
+    return peak, peak / spread, con.to_full(where)
+
+
+def _less_background(p: np.ndarray, ox: np.ndarray, oy: np.ndarray, band: float) -> np.ndarray:
+    """Patches ``(n, S, S)`` less their local background: each column's mean over the rows farther than
+    ``band`` from the middle (above and below a dot: a vertical window streak or a gradient across the
+    columns goes, a gradient along them cancels), or, with fewer than two such rows on each side, a plane
+    fitted outside a disk of radius ``band``."""
+    rows = np.abs(oy[:, 0]) > band
+    if rows.sum() >= 4:
+        return p - p[:, rows, :].mean(axis=1, keepdims=True)
+    ring = np.hypot(ox, oy) > band
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
-    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    contrast = _contrast(p, _plane(coef, ox[None], oy[None]), dark)
-    return _Flat(base, ox, oy, contrast, coef)
+    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)
+    return p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy)
 
 
-def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
-    """A dot's contrast: ``1 − I/B`` for dark dots (flat-fielded: illumination scales plate and dot alike),
-    ``I − B`` for bright dots on a dark plate (whose background is an offset, often near zero)."""
-    if dark:
-        return 1.0 - values / np.maximum(background, 1.0)
-    return values - background
+def _flat_disks(con: Contrast, at: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Reduced-image patches around points ``at`` [px], less their background outside the dot (radius
+    ``radius`` [px] plus 1.5 reduced px: :func:`_less_background`), and the mask of the dot's disk (plus 2
+    reduced px)."""
+    rd = radius / con.scale
+    half = int(np.ceil(rd + 4))
+    p, _ = gather_patches(con.signed, con.to_reduced(at), half)
+    off = np.arange(-half, half + 1, dtype=np.float32)
+    oy, ox = np.meshgrid(off, off, indexing="ij")
+    return _less_background(p, ox, oy, rd + 1.5), np.hypot(ox, oy) <= rd + 2
 
 
-def _plane(coef: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
-    """Plane ``b0 + bx·dx + by·dy`` per dot; ``dx, dy`` have a leading axis of length ``n`` or 1."""
-    shape = (-1,) + (1,) * (max(np.ndim(dx), np.ndim(dy)) - 1)
-    return coef[:, 0].reshape(shape) + coef[:, 1].reshape(shape) * dx + coef[:, 2].reshape(shape) * dy
+def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: float) -> np.ndarray:
+    """Normalised cross-correlation [-1, 1] of the flat-fielded disk around each point ``at`` with the
+    mean of those around the found ``dots`` (a template of the plate's own dots, blur and all)."""
+    ref, disk = _flat_disks(con, dots, radius)
+    t = ref.mean(axis=0)[disk]
+    t = (t - t.mean()) / (np.linalg.norm(t - t.mean()) + 1e-12)
+    p, _ = _flat_disks(con, at, radius)
+    p = p[:, disk]
+    p = p - p.mean(axis=1, keepdims=True)
+    return (p @ t) / (np.linalg.norm(p, axis=1) + 1e-12)
 
 
-def _profile_radius(flat: _Flat, radius: float) -> float:
-    """Radius [px] where the mean radial contrast profile of the dots falls to 2 % of its peak: the dot and
-    its defocus blur."""
-    d = np.rint(np.hypot(flat.ox, flat.oy)).astype(int).ravel()
-    prof = np.bincount(d, weights=flat.contrast.mean(axis=0).ravel()) / np.maximum(np.bincount(d), 1)
-    peak = prof[: max(int(radius), 1)].max()
-    beyond = np.flatnonzero((np.arange(len(prof)) > radius) & (prof < 0.02 * peak))
-    return float(beyond[0]) if len(beyond) else 1.5 * radius
-
-
-def _flat_for(img, centres, radii, dark) -> tuple[_Flat, float]:
-    """Flat-fielded patches sized to the dots: a first pass measures how far the blurred dots reach."""
-    r = float(np.median(radii))
-    first = _flatten(img, centres, 1.6 * r + 4, dark)
-    reach = min(_profile_radius(first, r) + 1.5, 1.6 * r + 3)
-    return _flatten(img, centres, reach + 1, dark), reach
-
-
-def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   iterations: int = 3) -> np.ndarray:
-    """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
-
-    ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
-    centre. The window is an anti-aliased disk reaching 1.5 px beyond where the dots' mean radial profile
-    falls to 2 % of its peak, re-centred on the estimate each iteration. Returns ``(n, 2)`` [px].
-    """
-    c = np.asarray(centres, float).copy()
-    if len(c) == 0:
-        return c
-    flat, reach = _flat_for(img, c, radii, dark)
-    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5  # the window never reaches beyond (|c - base| <= 0.5)
-    ox, oy = flat.ox[disk], flat.oy[disk]
-    con = flat.contrast[:, disk]
-    # float32 is ample here: sums of a few thousand terms of size <= reach, relative error ~1e-6 px
-    for _ in range(iterations):
-        f = (c - flat.base).astype(np.float32)
-        win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
-                      0.0, 1.0)
-        w = con * win
-        s = w.sum(axis=1, dtype=np.float64)
-        s = np.where(np.abs(s) > 1e-9, s, 1e-9)
-        c = flat.base + np.column_stack([w @ ox, w @ oy]).astype(np.float64) / s[:, None]
-    return c
-
-
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``img`` at ``(x, y)`` [px] (any shape), replicating the border (``cv2.remap``)."""
-    f = _as_float(img)
-    shape = np.broadcast(x, y).shape
-    n = shape[0] if len(shape) > 1 else 1
-    mx = np.broadcast_to(x, shape).astype(np.float32).reshape(n, -1)
-    my = np.broadcast_to(y, shape).astype(np.float32).reshape(n, -1)
-    return cv2.remap(f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
-
-
-def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   rays: int = 48, iterations: int = 2) -> np.ndarray:
-    """Sub-pixel centres from an ellipse fitted to the half-contrast crossings along ``rays`` rays.
-
-    The contrast ``1 − I/B`` is flat-fielded as in :func:`refine_moments`; along each ray the first
-    crossing of half the dot's inner contrast is found by linear interpolation; the conic through the
-    crossings (algebraic least squares) gives the centre. Returns ``(n, 2)`` [px].
-    """
-    c = np.asarray(centres, float).copy()
-    if len(c) == 0:
-        return c
-    r = float(np.median(radii))
-    flat, reach = _flat_for(img, c, radii, dark)
-    img = _as_float(img)  # once, for the samples of every iteration
-    t = np.linspace(0, 2 * np.pi, rays, endpoint=False)
-    steps = np.linspace(0.0, 1.0, 96)
-    rad = steps * reach
-    ox = np.cos(t)[None, :, None] * rad[None, None, :]                          # (1, R, S) offsets
-    oy = np.sin(t)[None, :, None] * rad[None, None, :]
-    core = max(2, int(0.5 * len(steps) * r / reach))
-    for _ in range(iterations):
-        f = c - flat.base
-        vals = _bilinear(img, c[:, 0, None, None] + ox, c[:, 1, None, None] + oy)
-        con = _contrast(vals, _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None]), dark)
-        level = 0.5 * np.median(con[:, :, :core], axis=(1, 2))
-        below = con < level[:, None, None]
-        below[:, :, 0] = False
-        first = np.argmax(below, axis=2)                                        # (n, R)
-        ok = below.any(axis=2) & (first > 0)
-        k1 = np.maximum(first - 1, 0)
-        g0 = np.take_along_axis(con, k1[..., None], axis=2)[..., 0]
-        g1 = np.take_along_axis(con, first[..., None], axis=2)[..., 0]
-        frac = np.clip((g0 - level[:, None]) / np.where(g0 != g1, g0 - g1, 1.0), 0, 1)
-        rr = (steps[k1] + frac * (steps[1] - steps[0])) * reach
-        c = c + _ellipse_centres(np.cos(t)[None, :] * rr, np.sin(t)[None, :] * rr, ok)
-    return c
-
-
-def _ellipse_centres(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Centres of the conics ``x² + B xy + C y² + D x + E y + F = 0`` fitted to points ``(n, R)``."""
-    a = np.stack([x * y, y * y, x, y, np.ones_like(x)], axis=-1) * ok[..., None]
-    rhs = -(x * x) * ok
-    ata = np.einsum("nrk,nrl->nkl", a, a) + 1e-9 * np.eye(5)
-    atb = np.einsum("nrk,nr->nk", a, rhs)
-    B, C, D, E, _ = np.linalg.solve(ata, atb[..., None])[..., 0].T
-    den = 4 * C - B * B
-    den = np.where(np.abs(den) > 1e-12, den, 1e-12)
-    return np.column_stack([(B * E - 2 * C * D) / den, (B * D - 2 * E) / den])
-
-
-# ------------------------------------------------------------------------------------------ indexing
-
-
-# ------------------------------------------------------------------------------------------ sets
+def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: np.ndarray, radius: float,
+                   pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 5) by
+    :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least 5
+    times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px] measured the
+    same way, not on the window's rim (a slope, not a dot), and correlated with the found dots' mean
+    appearance by at least :data:`NCC_MIN` (:func:`_template_match`). Returns found mask, positions [px]
+    and significance."""
+    if len(predicted) == 0:
+        return np.empty(0, bool), np.empty((0, 2)), np.empty(0)
+    ref_at = dots[np.linspace(0, len(dots) - 1, min(len(dots), 16)).astype(int)]
+    ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), float(con.scale)), radius, pitch)
+    peak, sig, where = _local_peaks(con, predicted, tol, radius, pitch)
+    inner = np.hypot(*(where - predicted).T) < np.maximum(np.asarray(tol) - con.scale, 0.5 * con.scale)
+    ok = (sig >= 5) & (peak >= 0.2 * float(np.median(ref))) & inner
+    if ok.any():   # and it looks like the plate's dots (a template of them), not a streak or a glyph
+        ok[ok] = _template_match(con, where[ok], ref_at, radius) >= NCC_MIN
+    return ok, where, sig
 
 

@@ -1,10 +1,20 @@
 """Dot extraction from one image: find the dots of a calibration plate, refine their centres to sub-pixel
 accuracy and number them on the plate's lattice (the command line's ``extract``; the paper's §3 input).
 
-For one image (8 or 16 bit, any format OpenCV reads, dark dots on a bright plate or bright dots on black):
-polarity, blobs and markers and sub-pixel centres (:mod:`slmlab.images.dots`), then the lattice and the
-plate's ``[row, col]`` (:mod:`slmlab.images.lattice`). The result is an :class:`ImageDots` table; a whole
-set of images is extracted by :mod:`slmlab.images.imageset`.
+For one image (8, 12 or 16 bit, any format OpenCV reads, dark dots on a bright plate or bright dots on black):
+
+1. candidates by a threshold sweep over the local contrast, and the plate's lattice fitted to them
+   (:mod:`slmlab.images.dots`, :mod:`slmlab.images.lattice`); with the polarity unknown both are tried and the
+   one whose lattice holds more dots is kept;
+2. hot pixels cleaned, then every lattice node without a dot (over the whole plate where its size is given)
+   searched locally before it is given up (:func:`slmlab.images.dots.search_missing`);
+3. sub-pixel centres (:mod:`slmlab.images.centres`); dots cut by the image edge or off the refitted lattice
+   dropped;
+4. the plate's ``[row, col]`` from its markers or its size (:mod:`slmlab.images.lattice`);
+5. a **report** (:attr:`ImageDots.report`): one row per candidate blob and per node searched, with what
+   became of it and why.
+
+The result is an :class:`ImageDots`; a whole set of images is extracted by :mod:`slmlab.images.imageset`.
 """
 
 from __future__ import annotations
@@ -15,31 +25,29 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
-from .dots import METHODS, dot_polarity, find_blobs, read_image, refine_ellipse, refine_moments
-from .lattice import (PlateLattice, absolute_indices, donut_indices, index_lattice, lattice_residual_px,
-                      origin_frame, plate_lattice)
+from .centres import METHODS, refine
+from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrast, marker_kind, read_image,
+                   search_missing, sweep)
+from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
+                      number_plate, origin_frame, plate_lattice, robust_model)
 
-__all__ = ["IMAGE_NAME", "AUTO_ELLIPSE_RATIO", "ImageDots", "empty_dots_table", "extract_image", "choose_method",
-           "extract_stereo_pairs"]
+__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table", "extract_image", "choose_method",
+           "report_summary", "extract_stereo_pairs"]
 
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
 
 
-#: ``method="auto"`` takes the ellipse estimator only where its centres lie this much more smoothly on the
-#: lattice than the moments' (real, textured dots); otherwise moments, the more accurate on uniform dots
-AUTO_ELLIPSE_RATIO = 0.7
-
-
-def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict]:
-    """The centre estimator for a plate's images (``method="auto"``): both estimators on one image, compared
-    by :func:`lattice_residual_px`; ``ellipse`` only if it is below :data:`AUTO_ELLIPSE_RATIO` times the
-    moments' residual. Returns the method and the residual [px] of each."""
-    res = {m: lattice_residual_px(extract_image(img, rows, cols, method=m, **kw).table) for m in METHODS}
-    ok = all(np.isfinite(v) for v in res.values())
-    return ("ellipse" if ok and res["ellipse"] < AUTO_ELLIPSE_RATIO * res["moments"] else "moments"), res
+#: ``method="auto"`` takes an edge estimator (``ellipse`` or ``edges``) only where its centres lie this much
+#: more smoothly on the lattice than the moments' (real, textured dots); otherwise moments, the more
+#: precise on uniform dots far out of focus
+AUTO_EDGE_RATIO = 0.7
+#: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
+#: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
+OFF_LATTICE_PX = 0.25
 
 
 @dataclass
@@ -53,12 +61,25 @@ class ImageDots:
         ``w1, w2`` [px], ``marker`` (a donut), ``level`` (0, or 1 on a two-level plate's second level), and,
         once anchored, ``row, col``; with an origin-anchored frame also ``xu, yu`` (plate-frame coordinates
         in plate units from the origin dot).
+    found, rejected, spurious
+        dots found (on the lattice, recovered ones included), candidate blobs rejected, and of those the ones
+        off the lattice.
+    note
+        why the dots are not numbered (empty if they are).
     frame
         ``'plate'`` (``row, col`` are the plate's own indices), ``'origin'`` (``row = −yu``,
         ``col = −xu`` up to one shift for the whole set: :mod:`slmlab.images.imageset` numbers them), or ``None``
         (not anchored: ``note`` says why).
     how
         how the indices were anchored (for the notes).
+    report
+        one row per candidate blob and per lattice node searched: ``candidate`` (``-1`` for a searched node),
+        ``w1, w2`` [px], ``area_px``, ``levels`` (sweep levels it was seen at), ``peak_sigma`` (its contrast
+        in noise σ), ``status`` (``dot``, ``recovered``: found by the local search, ``rejected``,
+        ``missing``: a node of the plate searched without a dot, ``empty``: a node beyond the plate) and
+        ``reason``. :func:`report_summary` counts it.
+    noise_blobs, hot_pixels
+        blobs seen at one sweep level only (noise, not reported one by one) and hot pixels replaced.
     """
 
     table: pd.DataFrame
@@ -71,9 +92,13 @@ class ImageDots:
     how: str = ""
     markers: list = field(default_factory=list)
     dark: bool = True
+    report: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=_REPORT), repr=False)
+    noise_blobs: int = 0
+    hot_pixels: int = 0
 
 
 _EMPTY = {"i1": int, "i2": int, "w1": float, "w2": float, "marker": bool, "level": int, "row": int, "col": int}
+_REPORT = ["candidate", "w1", "w2", "area_px", "levels", "peak_sigma", "status", "reason"]
 
 
 def empty_dots_table() -> pd.DataFrame:
@@ -81,10 +106,308 @@ def empty_dots_table() -> pd.DataFrame:
     return pd.DataFrame({k: pd.Series(dtype=t) for k, t in _EMPTY.items()})
 
 
+# ------------------------------------------------------------------------------------------ locating
+@dataclass
+class _Located:
+    """What detection, the lattice and the local search found in one image, before the centres are refined.
+
+    ``ab``, ``xy``, ``area``, ``hole``, ``src``: the lattice's dots (its candidates, then the nodes the local
+    search recovered): nodes, first centres [px], areas [px²], donut flags and candidate index (``-1``:
+    recovered at a node where no candidate was); ``searched``: nodes searched, found flags, where [px] and
+    significance [σ]; ``clean``: the image without its hot pixels."""
+
+    dark: bool
+    con: Contrast
+    cand: Candidates
+    fit: LatticeFit | None
+    clean: np.ndarray | None = None
+    hot: int = 0
+    searched: tuple = ()
+    ab: np.ndarray | None = None
+    xy: np.ndarray | None = None
+    area: np.ndarray | None = None
+    hole: np.ndarray | None = None
+    src: np.ndarray | None = None
+
+
+def _detect(img: np.ndarray, dark: bool, two_level: bool) -> _Located:
+    """Local contrast, sweep and lattice for one polarity."""
+    con = local_contrast(img, dark=dark)
+    cand = sweep(con)
+    return _Located(dark, con, cand, fit_lattice(cand, img.shape, two_level=two_level))
+
+
+def _detect_any(img: np.ndarray, dark: bool | None, two_level: bool) -> _Located:
+    """:func:`_detect` for the given polarity, or for both (``dark=None``), keeping the one whose lattice
+    holds more candidates."""
+    if dark is not None:
+        return _detect(img, dark, two_level)
+    runs = [_detect(img, d, two_level) for d in (False, True)]
+    return max(runs, key=lambda r: -1 if r.fit is None else int(r.fit.on.sum()))
+
+
+def _dot_radius(loc: _Located) -> float:
+    """The median radius of the lattice's candidates [px]."""
+    return float(np.sqrt(np.median(loc.cand.area[loc.fit.on]) / np.pi))
+
+
+def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | None, two_level: bool) -> _Located:
+    """Steps 1-2 of the module docstring: candidates and lattice, hot pixels, the local search."""
+    loc = _detect_any(img, dark, two_level)
+    if loc.fit is None:
+        return loc
+    radius = _dot_radius(loc)
+    loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on])
+    con = local_contrast(loc.clean, dark=loc.dark) if loc.hot else loc.con
+    grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
+    loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
+    loc.ab, loc.xy, loc.area, loc.hole, loc.src = _lattice_dots(loc.cand, loc.fit, loc.searched)
+    return loc
+
+
+def _search_box(fit: LatticeFit, rows: int | None, cols: int | None) -> int:
+    """How many lines beyond the lattice's box to search: enough for the whole plate if its size is given,
+    else one (repeated while lines are found)."""
+    if rows is None or cols is None:
+        return 1
+    a0, a1, b0, b1 = fit.box
+    return max(0, int(max(rows, cols) - min(a1 - a0, b1 - b0) - 1))
+
+
+def _recover(con: Contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, margin: float, repeat: bool):
+    """Nodes of the box grown by ``grow`` lines without a candidate, searched (:func:`search_missing`);
+    with ``repeat``, the box keeps growing by one line while lines yield dots. Returns searched nodes,
+    found mask, positions [px] and significance."""
+    dots, radius = cand.xy[fit.on], float(np.sqrt(np.median(cand.area[fit.on]) / np.pi))
+    done = {tuple(n) for n in fit.node[fit.on]}
+    out = []
+    while True:
+        nodes = fit.nodes(grow)
+        p = fit.model.predict(nodes)
+        todo = np.array([tuple(n) not in done for n in nodes]) & inside_image(p, shape, margin)
+        if not todo.any():
+            break
+        ok, where, sig = search_missing(con, p[todo], fit.tolerance(nodes[todo]), dots, radius, fit.pitch)
+        out.append((nodes[todo], ok, where, sig))
+        done |= {tuple(n) for n in nodes[todo]}
+        if not (repeat and ok.any()) or grow > 2 * max(fit.box[1] - fit.box[0], fit.box[3] - fit.box[2]):
+            break
+        grow += 1
+    if not out:
+        return np.empty((0, 2), int), np.empty(0, bool), np.empty((0, 2)), np.empty(0)
+    nodes, ok, where, sig = (np.concatenate(x) for x in zip(*out))
+    return nodes, ok & _line_supported(nodes, ok, fit.box), where, sig
+
+
+def _line_supported(nodes: np.ndarray, ok: np.ndarray, box) -> np.ndarray:
+    """Whether each searched node's finding stands: inside the lattice's box always; beyond it only if its
+    lattice line (beyond the box, nodes in the image) holds dots at ≥ 30 % of its searched nodes and at two
+    at least (one if the image shows one node of it), as the lattice itself grows: a lone find on a line
+    the image shows is a glyph or a hot spot, not the plate."""
+    a0, a1, b0, b1 = box
+    a, b = nodes[:, 0], nodes[:, 1]
+    line = np.where(a < a0, a - a0, np.where(a > a1, a - a1, 0)) * 4 + np.where(a < a0, 0, np.where(a > a1, 1, 2))
+    line = np.where((a >= a0) & (a <= a1), 10_000 + np.where(b < b0, b - b0, b - b1) * 4 + (b > b1), line)
+    beyond = (a < a0) | (a > a1) | (b < b0) | (b > b1)
+    keys, inv = np.unique(line, return_inverse=True)
+    hits, total = np.bincount(inv, weights=ok, minlength=len(keys)), np.bincount(inv, minlength=len(keys))
+    good_line = (hits >= np.minimum(2, total)) & (hits >= 0.3 * total)
+    return ~beyond | good_line[inv]
+
+
+def _lattice_dots(cand: Candidates, fit: LatticeFit, searched) -> tuple[np.ndarray, ...]:
+    """The lattice's dots: its candidates, then the nodes the local search recovered. A recovered dot that
+    a candidate left off the lattice sits on (its line was too sparse to grow into) takes that candidate's
+    centroid, area and donut flag; the others take the dots' median area. Returns nodes ``(n, 2)``, first
+    centres ``(n, 2)`` [px], areas [px²], donut flags and candidate indices (``-1``: none)."""
+    nodes, ok, where, _ = searched
+    where = where[ok]
+    src = np.full(len(where), -1)
+    off = np.flatnonzero(~fit.on)
+    if len(off) and len(where):
+        d, j = cKDTree(cand.xy[off]).query(where)
+        near = d < 0.5 * np.sqrt(cand.area[off[j]] / np.pi)
+        src[near] = off[j[near]]
+    adopted = src >= 0
+    xy = np.where(adopted[:, None], cand.xy[np.maximum(src, 0)], where)
+    area = np.where(adopted, cand.area[np.maximum(src, 0)], np.median(cand.area[fit.on]))
+    hole = adopted & cand.hole[np.maximum(src, 0)]
+    return (np.vstack([fit.node[fit.on], nodes[ok]]), np.vstack([cand.xy[fit.on], xy]),
+            np.r_[cand.area[fit.on], area], np.r_[cand.hole[fit.on], hole], np.r_[np.flatnonzero(fit.on), src])
+
+
+def _whole(xy: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Dots whose outline (a disk of ``radii`` [px], plus 1 px) lies wholly inside the image."""
+    h, w = shape
+    m = np.asarray(radii, float) + 1
+    return (xy[:, 0] >= m) & (xy[:, 1] >= m) & (xy[:, 0] <= w - 1 - m) & (xy[:, 1] <= h - 1 - m)
+
+
+def _refined(loc: _Located, method: str, two_level: bool):
+    """The lattice's dots refined to sub-pixel centres (:func:`slmlab.images.centres.refine`, on the image
+    cleaned of hot pixels); those cut by the image edge or off the lattice refitted on the refined centres
+    (by more than half the capture radius, or than five times the dots' median distance from it and
+    :data:`OFF_LATTICE_PX`) are dropped. Returns the dots' nodes ``(m, 2)``, centres ``(m,
+    2)`` [px], donut flags, candidate index of each (``-1``: recovered) and the dropped ones with why
+    (candidates by index, recovered nodes by ``-1 - k``, their place among the recovered), and the lattice
+    model refitted on the refined centres."""
+    radii = np.sqrt(loc.area / np.pi)
+    xy = refine(loc.clean, loc.xy, radii, dark=loc.dark, method=method)
+    model, _ = robust_model(loc.ab.astype(float), xy, loc.fit.pitch, two_level=two_level)
+    off = np.hypot(*(xy - model.predict(loc.ab)).T)
+    whole = _whole(xy, radii, loc.clean.shape)
+    # off the lattice: beyond half the capture radius, or five times the dots' median distance from it (at
+    # least 0.25 px): a centre pulled by dust or a neighbour, not distortion, which the model absorbs
+    limit = np.minimum(0.5 * loc.fit.tolerance(loc.ab), max(5 * float(np.nanmedian(off)), OFF_LATTICE_PX))
+    good = (off < limit) & whole & np.isfinite(xy).all(axis=1)
+    why = np.where(whole, np.char.mod("off the lattice after refinement (%.1f px)", off),
+                   "touching border (the dot's outline is cut by the image edge)")
+    dropped = {int(k): str(w) for k, w, g in zip(loc.src, why, good) if not g and k >= 0}
+    n_on = int(loc.fit.on.sum())
+    dropped.update({-1 - j: str(why[n_on + j]) for j in np.flatnonzero(~good[n_on:])})
+    return loc.ab[good], xy[good], loc.hole[good], loc.src[good], dropped, model
+
+
+# ------------------------------------------------------------------------------------------ the report
+def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit) -> tuple[np.ndarray, list]:
+    """Why each candidate the lattice left off was left off (an array of reasons; on-lattice ones empty),
+    and the markers among them (:func:`slmlab.images.dots.marker_kind`)."""
+    nodes = fit.nodes(grow=2)
+    d, j = cKDTree(fit.model.predict(nodes)).query(cand.xy)
+    near = d < fit.tolerance(nodes[j])
+    ratio = cand.area / float(np.median(cand.area[fit.on]))
+    taken = np.zeros(len(nodes), bool)
+    a0, a1, b0, b1 = fit.box
+    taken[((fit.node[fit.on, 0] - a0 + 2) * (b1 - b0 + 5) + fit.node[fit.on, 1] - b0 + 2)] = True
+    inbox = (nodes[j, 0] >= a0) & (nodes[j, 0] <= a1) & (nodes[j, 1] >= b0) & (nodes[j, 1] <= b1)
+    code = np.select([fit.on, cand.border, near & taken[j], near & ((ratio < 0.25) | (ratio > 4)), near & ~inbox],
+                     [0, 1, 2, 3, 4], 5)
+    fixed = {1: "touching border", 2: "duplicate: another blob is nearer its node",
+             4: "beyond the lattice (a line too sparse to be the plate's)"}
+    reason = np.full(len(cand), "", dtype=object)
+    for k in np.flatnonzero(code > 0):
+        c = int(code[k])
+        reason[k] = fixed.get(c) or (f"off the lattice ({d[k]:.1f} px from the nearest node)" if c == 5 else
+                                     f"too {'small' if ratio[k] < 0.25 else 'large'} ({ratio[k]:.2g} of the "
+                                     "dots' median area)")
+    return reason, _markers(img, con, cand, fit, reason, ratio)
+
+
+def _markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, reason: np.ndarray,
+             ratio: np.ndarray) -> list:
+    """The markers among the candidates off the lattice (their ``reason`` set to the marker's kind): solid
+    shapes of about a dot's size away from every lattice node (a plate's markers sit in its holes), as plain
+    to see as the dots and apart from them (a shape that parallax brings near a dot is seen apart from it
+    only at the higher levels of the sweep), read at their reference level; and thin outlines (a ring, a
+    frame) centred on a dot and larger than it, read at their widest."""
+    markers = []
+    dd, _ = cKDTree(cand.xy[fit.on]).query(cand.xy)
+    apart = dd > 1.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)    # not a piece of a dot
+    bright = cand.peak >= 0.3 * np.median(cand.peak[fit.on])
+    off = np.array([str(r).startswith("off the lattice (") for r in reason])
+    shapes = (ratio > 0.3) & (ratio < 4) & (cand.area >= 100) & apart & bright & off
+    outline = cand.area < 0.4 * cand.size[:, 0] * cand.size[:, 1]          # a ring or frame: mostly hole
+    around = (dd < 0.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)) & (
+        cand.size > 1.2 * np.median(cand.size[fit.on], axis=0)).all(axis=1)
+    frames = (cand.hole | outline) & around                                # a frame centred on a dot, larger
+    for k in np.flatnonzero((reason != "") & ~cand.border & (shapes | frames)):
+        kind = marker_kind(img, con, cand, k, cand.low[k] if frames[k] and not shapes[k] else cand.level[k])
+        if (kind == "frame" and frames[k]) or (kind in ("triangle", "square") and shapes[k]):
+            markers.append(Marker(kind, tuple(cand.xy[k])))
+            reason[k] = f"marker: {kind}"
+    return markers
+
+
+def _report(cand: Candidates, reason: np.ndarray, searched, dropped: dict, expected: np.ndarray) -> pd.DataFrame:
+    """The per-image report (:attr:`ImageDots.report`): the candidates, then the nodes searched
+    (``expected``: the searched nodes inside the plate, where a dot was expected: ``missing`` if none was
+    found, else ``empty``)."""
+    status = np.where(reason == "", "dot", "rejected").astype(object)
+    reason = reason.copy()
+    for k, why in dropped.items():
+        if k >= 0:
+            status[k], reason[k] = "rejected", why
+    reason[(status == "dot") & cand.hole] = "on the lattice, donut marker"
+    reason[reason == ""] = "on the lattice"
+    rep = pd.DataFrame({"candidate": np.arange(len(cand)), "w1": cand.xy[:, 0], "w2": cand.xy[:, 1],
+                        "area_px": cand.area, "levels": cand.levels, "peak_sigma": cand.peak, "status": status,
+                        "reason": reason})
+    nodes, ok, where, sig = searched
+    st = np.where(ok, "recovered", np.where(expected, "missing", "empty")).astype(object)
+    why = [f"local search at node ({a}, {b}): " + (f"peak {s:.1f} σ" if o else f"no dot (best {s:.1f} σ)")
+           for (a, b), o, s in zip(nodes, ok, sig)]
+    for j, row in enumerate(np.flatnonzero(ok)):
+        if -1 - j in dropped:
+            st[row], why[row] = "rejected", why[row] + "; " + dropped[-1 - j]
+    srch = pd.DataFrame({"candidate": -1, "w1": where[:, 0], "w2": where[:, 1], "area_px": np.nan, "levels": 0,
+                         "peak_sigma": sig, "status": st, "reason": why})
+    return pd.concat([rep, srch], ignore_index=True) if len(srch) else rep
+
+
+def report_summary(report: pd.DataFrame) -> str:
+    """One line of counts from :attr:`ImageDots.report`: dots on the lattice and recovered by the local
+    search, nodes searched without a dot, and the rejected blobs by reason (numbers in reasons pooled)."""
+    st = report["status"].value_counts()
+    rej = report.loc[report["status"] == "rejected", "reason"].str.replace(r"\s*\(.*\)$|^local search.*; ", "",
+                                                                         regex=True).value_counts()
+    parts = [f"{int(st.get('dot', 0))} dots on the lattice", f"{int(st.get('recovered', 0))} recovered by the local search",
+             f"{int(st.get('missing', 0))} plate nodes searched without a dot"]
+    if len(rej):
+        parts.append("rejected: " + ", ".join(f"{v} {k}" for k, v in rej.items()))
+    return "; ".join(parts)
+
+
+# ------------------------------------------------------------------------------------------ anchoring
+def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *, anchor: str, marker_origin,
+            two_level: bool, seen):
+    """The plate's ``[row, col]`` of one image's lattice: from an L of donut markers, from a square and a
+    triangle or a frame (an origin frame), or from the plate's size (:mod:`slmlab.images.lattice`). Returns
+    the table (with ``row, col``, sorted, where anchored), the frame (``'plate'``, ``'origin'`` or ``None``),
+    how it was anchored, why not, and the plate's window in ``i1, i2`` where its size numbered it. ``seen``:
+    where the image would show a dot (:func:`_seeable`)."""
+    frame, how, note, window = None, "", "", None
+    holes = table["marker"].to_numpy(bool)
+    donuts = int(holes.sum())
+    sized = rows is not None and cols is not None
+    # polygon markers give an origin, for a plate whose size is unknown; a donut L numbers any plate
+    use_markers = anchor == "markers" or (anchor == "auto" and (donuts >= 3 or (markers and not sized)))
+    if use_markers and donuts >= 3:
+        ij, note = donut_indices(pl, holes, marker_origin)
+        if ij is not None:
+            table["row"], table["col"], frame, how = ij[0], ij[1], "plate", "an L of donut markers"
+    elif use_markers:
+        xy, msg = origin_frame(pl, markers)
+        if xy is None:
+            note = msg
+        else:
+            frame, how = "origin", msg
+            if two_level:  # the origin's level is level 0
+                table["level"] = (xy[0] % 2).astype(int)
+            table["xu"], table["yu"] = xy[0].astype(int), xy[1].astype(int)
+            table["row"], table["col"] = -table["yu"], -table["xu"]
+    if frame is None and (sized or not note) and anchor != "markers":
+        if not sized:
+            note = ("no markers found and the plate's rows and cols are not given (a plate larger than the "
+                    "field needs markers, or neighbouring images to track it from)")
+        else:
+            rc, inside, note, window = number_plate(pl, rows, cols, seen)
+            if rc is not None:
+                table["row"], table["col"], frame = rc[0], rc[1], "plate"
+                how = "the plate's size" + (f" ({note})" if note else "")
+                table = table[inside]
+    if frame is None:
+        table["row"] = pd.Series(dtype=int)
+        table["col"] = pd.Series(dtype=int)
+    else:
+        table = table.sort_values(["row", "col"], kind="stable").reset_index(drop=True)
+    return table, frame, how, note if frame is None else "", window
+
+
+# ------------------------------------------------------------------------------------------ one image
 def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = None, *, method: str = "moments",
                   dark: bool | None = True, dot_diameter_px: float | None = None, anchor: str = "auto",
                   marker_origin: tuple[int, int] = (2, 2), two_level: bool = False) -> ImageDots:
-    """Find, refine and index the dots of a plate in one image (any bit depth).
+    """Find, refine and number the dots of a plate in one image (any bit depth; module docstring).
 
     Parameters
     ----------
@@ -93,12 +416,13 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
     rows, cols
         the plate's size, or ``None`` for a plate larger than the field (then markers anchor the indices).
     method
-        ``'moments'`` (default) or ``'ellipse'`` (see :func:`refine_moments`, :func:`refine_ellipse`).
+        the centre estimator, one of :data:`slmlab.images.centres.METHODS` (``'moments'``, the default,
+        ``'ellipse'`` or ``'edges'``).
     dark
         dark dots on a bright plate (``True``), bright dots on a dark plate (``False``), or ``None``: decided
-        from the image (:func:`dot_polarity`).
+        from the image (both are tried; the one whose lattice holds more dots is kept).
     dot_diameter_px
-        expected dot diameter [px] if known (for the border margin of the plate-size anchor).
+        expected dot diameter [px] if known (the border margin of the plate-size numbering; else measured).
     anchor
         ``'auto'``: markers where the plate has them (a donut L, a square and a triangle, a frame around a
         dot), else the plate's size; ``'plate'``: from the plate's size and where the lattice leaves the image;
@@ -113,69 +437,105 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
         raise SlmlabError(f"unknown centre method {method!r}; use one of {', '.join(METHODS)}")
     if anchor not in ("auto", "plate", "markers"):
         raise SlmlabError(f"unknown anchor {anchor!r}; use 'auto', 'plate' or 'markers'")
-    if dark is None:
-        dark = dot_polarity(img)
-    blobs = find_blobs(img, dark=dark)
-    if len(blobs.centres) < 4:
-        return ImageDots(empty_dots_table(), len(blobs.centres), blobs.rejected, 0,
-                         f"{len(blobs.centres)} dot(s) found, at least 4 are needed", markers=blobs.markers, dark=dark)
-    refine = refine_moments if method == "moments" else refine_ellipse
-    centres = refine(img, blobs.centres, blobs.radii, dark=dark)
-    lat, on = index_lattice(centres)
-    spurious = int((~on).sum())
-    pl = plate_lattice(lat, on, two_level=two_level)
-    k = pl.index
-    level = ((pl.i1 % 2) if two_level else np.zeros(len(k), int)).astype(int)
-    table = pd.DataFrame({"i1": pl.i1, "i2": pl.i2, "w1": centres[k, 0], "w2": centres[k, 1],
-                          "marker": blobs.holes[k], "level": level})
-    radius = (dot_diameter_px / 2) if dot_diameter_px else float(np.median(blobs.radii))
-    table, frame, how, note = _anchor(table, pl, blobs, rows, cols, anchor=anchor, marker_origin=marker_origin,
-                                      two_level=two_level, image_size=(img.shape[1], img.shape[0]),
-                                      margin_px=radius + 2)
-    return ImageDots(table, len(centres), blobs.rejected, spurious, note if frame is None else "", pl, frame, how,
-                     blobs.markers, dark)
+    loc = _locate(img, rows, cols, dark, two_level)
+    if loc.fit is None:
+        return _no_lattice(loc)
+    return _finish(loc, method, rows, cols, dict(anchor=anchor, marker_origin=marker_origin, two_level=two_level),
+                   dot_diameter_px)
 
 
-def _anchor(table: pd.DataFrame, pl: PlateLattice, blobs, rows, cols, *, anchor: str, marker_origin, two_level: bool,
-            image_size: tuple[int, int], margin_px: float):
-    """The plate's ``[row, col]`` of one image's lattice: from an L of donut markers, from a square and a
-    triangle or a frame (an origin frame), or from the plate's size (:mod:`slmlab.images.lattice`). Returns
-    the table (with ``row, col``, sorted, where anchored), the frame (``'plate'``, ``'origin'`` or ``None``),
-    how it was anchored, and why not."""
-    k = pl.index
-    frame, how, note = None, "", ""
-    donuts = int(blobs.holes[k].sum())
-    sized = rows is not None and cols is not None
-    # polygon markers give an origin, for a plate whose size is unknown; a donut L numbers any plate
-    use_markers = anchor == "markers" or (anchor == "auto" and (donuts >= 3 or (blobs.markers and not sized)))
-    if use_markers and donuts >= 3:
-        ij, note = donut_indices(pl, blobs.holes, marker_origin)
-        if ij is not None:
-            table["row"], table["col"], frame, how = ij[0], ij[1], "plate", "an L of donut markers"
-    elif use_markers:
-        xy, msg = origin_frame(pl, blobs.markers)
-        if xy is None:
-            note = msg
-        else:
-            frame, how = "origin", msg
-            if two_level:  # the origin's level is level 0
-                table["level"] = (xy[0] % 2).astype(int)
-            table["xu"], table["yu"] = xy[0].astype(int), xy[1].astype(int)
-            table["row"], table["col"] = -table["yu"], -table["xu"]
-    if frame is None and (sized or not note) and anchor != "markers":
-        if not sized:
-            note = ("no markers found and the plate's rows and cols are not given (a plate larger than the "
-                    "field needs markers, or neighbouring images to track it from)")
-        else:
-            ij, note = absolute_indices(pl, rows, cols, image_size, margin_px)
-            if ij is not None:
-                table["row"], table["col"], frame, how = ij[0], ij[1], "plate", "the plate's size"
-    if frame is None:
-        table["row"] = pd.Series(dtype=int)
-        table["col"] = pd.Series(dtype=int)
+def _no_lattice(loc: _Located) -> ImageDots:
+    """The result of an image without a lattice: no dots, every candidate reported, and why."""
+    none = (np.empty((0, 2), int), np.empty(0, bool), np.empty((0, 2)), np.empty(0))
+    rep = _report(loc.cand, np.full(len(loc.cand), "no lattice found", object), none, {}, np.empty(0, bool))
+    note = (f"no lattice: {len(loc.cand)} blob(s) found, none with six of its eight lattice neighbours (a plate "
+            "of at least 3 × 3 dots is needed)")
+    return ImageDots(empty_dots_table(), 0, len(loc.cand), 0, note, dark=loc.dark, report=rep,
+                     noise_blobs=loc.cand.noise)
+
+
+def _table(loc: _Located, method: str, two_level: bool):
+    """The refined dots as a table (``i1, i2, w1, w2, marker, level`` and the candidate index ``_src``), their
+    :class:`PlateLattice` and the dropped candidates with why."""
+    ab, xy, hole, src, dropped, model = _refined(loc, method, two_level)
+    pl = plate_lattice(model, ab, two_level=two_level)
+    level = ((pl.i1 % 2) if two_level else np.zeros(len(ab), int)).astype(int)
+    table = pd.DataFrame({"i1": pl.i1, "i2": pl.i2, "w1": xy[:, 0], "w2": xy[:, 1], "marker": hole, "level": level,
+                          "_src": src})
+    return table, pl, dropped
+
+
+def _seeable(loc: _Located, table: pd.DataFrame, margin_px: float):
+    """``seen(points (n, 2) [px]) -> (n,)``: where this image would show a dot of the plate: at least
+    ``margin_px`` inside it, not saturated, on a background like the found dots' (within their range and
+    three robust spreads; a saturated glare or a camera's text strip is not) and no noisier than 1.5 times
+    theirs (window streaks or texture there may hide a dot from the sweep and the local search). An empty
+    plate line is evidence of the plate's edge only there."""
+    con, shape = loc.con, loc.clean.shape
+    top = float(np.max(loc.clean))
+
+    def reduced(p):
+        r = np.rint(con.to_reduced(p)).astype(int)
+        return np.clip(r[:, 1], 0, con.z.shape[0] - 1), np.clip(r[:, 0], 0, con.z.shape[1] - 1)
+    ry, rx = reduced(table[["w1", "w2"]].to_numpy())
+    bg, spread = con.background[ry, rx], float(np.median(con.spread[ry, rx]))
+    pad = 3 * 1.4826 * float(np.median(np.abs(bg - np.median(bg)))) + 3 * spread
+    lo, hi = float(bg.min()) - pad, float(bg.max()) + pad
+
+    def seen(p: np.ndarray) -> np.ndarray:
+        ok = inside_image(p, shape, margin_px)
+        y, x = reduced(p)
+        level = -con.signed[y, x] if con.dark else con.signed[y, x]
+        return (ok & (con.background[y, x] >= lo) & (con.background[y, x] <= hi) & (level < 0.98 * top)
+                & (con.spread[y, x] <= 1.5 * spread))
+    return seen
+
+
+def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px) -> ImageDots:
+    """Steps 3-5 of the module docstring on located dots: centres, numbering, report."""
+    table, pl, dropped = _table(loc, method, anchoring["two_level"])
+    reason, markers = _candidate_reasons(loc.clean, loc.con, loc.cand, loc.fit)
+    radius = dot_diameter_px / 2 if dot_diameter_px else _dot_radius(loc)
+    src_all = table["_src"].to_numpy()
+    table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, seen=_seeable(loc, table, radius + 1),
+                                              **anchoring)
+    outside = np.setdiff1d(src_all, table["_src"].to_numpy())
+    dropped.update({int(k): "outside the plate (beyond its rows × cols)" for k in outside if k >= 0})
+    nodes = loc.searched[0]
+    if window is None:       # no plate window: the nodes beyond the lattice's box held no dot to expect
+        a0, a1, b0, b1 = loc.fit.box
+        expected = (nodes[:, 0] >= a0) & (nodes[:, 0] <= a1) & (nodes[:, 1] >= b0) & (nodes[:, 1] <= b1)
     else:
-        table = table.sort_values(["row", "col"], kind="stable").reset_index(drop=True)
-    return table, frame, how, note
+        i = nodes @ pl.m.T
+        expected = (i[:, 0] >= window[0]) & (i[:, 0] <= window[1]) & (i[:, 1] >= window[2]) & (i[:, 1] <= window[3])
+    rep = _report(loc.cand, reason, loc.searched, dropped, expected)
+    spurious = int(rep["reason"].str.startswith("off the lattice (").sum())
+    rejected = int((rep["status"] == "rejected").sum())
+    return ImageDots(table.drop(columns="_src"), len(src_all), rejected, spurious, note, pl, frame, how, markers,
+                     loc.dark, rep, loc.cand.noise, loc.hot)
+
+
+def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict]:
+    """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
+    refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
+    glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`, an edge
+    estimator (the smoother of ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times
+    the moments' residual, else ``moments``. Returns the method and the residual [px] of each."""
+    anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
+    anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
+    loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
+    if loc.fit is None:
+        return "moments", {m: float("nan") for m in METHODS}
+    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS}
+    res = {m: lattice_residual_px(t) for m, t in tables.items()}
+    most = max(len(t) for t in tables.values())
+    kept = [m for m in METHODS if len(tables[m]) == most]      # an estimator whose centres leave the lattice
+    edge = min((m for m in ("ellipse", "edges") if m in kept), key=lambda m: res[m] if np.isfinite(res[m]) else np.inf,
+               default=None)
+    if "moments" not in kept:
+        return edge, res
+    ok = edge is not None and np.isfinite(res[edge]) and np.isfinite(res["moments"])
+    return (edge if ok and res[edge] < AUTO_EDGE_RATIO * res["moments"] else "moments"), res
 
 
 def extract_stereo_pairs(pairs: list[tuple[Path, Path]], rows: int, cols: int, *, anchor: str = "markers") -> pd.DataFrame:

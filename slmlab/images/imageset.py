@@ -40,7 +40,7 @@ from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_cs
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
 from .dots import read_image
-from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image
+from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image, report_summary
 from .lattice import PlateLattice
 
 __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePair", "image_pairs", "extract_set",
@@ -259,12 +259,13 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
                 ) -> tuple[pd.DataFrame, list[str]]:
     """Extract every image of a set into the rows of ``points.csv`` (module docstring).
 
-    ``method``: the centre estimator of dot plates (``'moments'``, ``'ellipse'``, or ``'auto'``: chosen per
-    plate and view on its first image by :func:`slmlab.images.extract.choose_method`, and named in the notes).
+    ``method``: the centre estimator of dot plates (one of :data:`slmlab.images.centres.METHODS`, or
+    ``'auto'``: chosen per plate and view on its first image by :func:`slmlab.images.extract.choose_method`,
+    and named in the notes).
 
     Returns the points table (``POINT_COLUMNS``; plus ``x_mm, y_mm, z_mm`` for plates anchored by markers and
-    ``level`` for two-level plates) and notes: how each plate's numbering was anchored, images with spurious
-    blobs, views without an image. Raises :class:`SlmlabError` before anything is written.
+    ``level`` for two-level plates) and notes: how each plate's numbering was anchored, what the images'
+    reports found and rejected per plate and view, views without an image. Raises :class:`SlmlabError` before anything is written.
     """
     set_dir = Path(set_dir)
     if not set_dir.is_dir():
@@ -317,9 +318,9 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
             if method == "auto":
                 if (spec.name, side) not in chosen:
                     chosen[(spec.name, side)], res = choose_method(img, spec.rows, spec.cols, **kw)
-                    notes.append(f"plate {spec.name}, {'left' if side == 'l' else 'right'} view: centres by "
-                                 f"{chosen[(spec.name, side)]} (lattice residual {res['ellipse']:.3f} px by ellipse, "
-                                 f"{res['moments']:.3f} px by moments, on {path.name})")
+                    notes.append(f"plate {spec.name}, {_VIEW[side]} view: centres by {chosen[(spec.name, side)]} "
+                                 "(lattice residual " + ", ".join(f"{v:.3f} px by {k}" for k, v in res.items())
+                                 + f", on {path.name})")
                 m = chosen[(spec.name, side)]
             dots = extract_image(img, spec.rows, spec.cols, method=m, **kw)
         else:
@@ -329,10 +330,26 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
             hint = ("check plates.{0}.dots (dark or bright) in meta.json, the focus and exposure"
                     if spec.pattern == "dots" else "check plates.{0} (pattern, size, board) in meta.json and the focus")
             raise SlmlabError(f"no {what} found ({pr.source}); {hint.format(spec.name)}, or leave the image out", path)
-        if dots.spurious:
-            notes.append(f"{path.name}: {dots.spurious} blob(s) off the lattice dropped")
         found.append(_Found(pr, side, path, dots, spec))
+    _report_notes(found, notes)
     return found
+
+
+_VIEW = {"l": "left", "r": "right"}
+
+
+def _report_notes(found: list[_Found], notes: list) -> None:
+    """One note per dot plate and view: what the images' reports (:attr:`ImageDots.report`) found and
+    rejected, and why (:func:`slmlab.images.extract.report_summary`)."""
+    groups: dict[tuple[str, str], list[_Found]] = {}
+    for f in found:
+        if f.spec.pattern == "dots":
+            groups.setdefault((f.spec.name, f.side), []).append(f)
+    for (name, side), fs in groups.items():
+        rep = pd.concat([f.dots.report for f in fs], ignore_index=True)
+        hot, noise = sum(f.dots.hot_pixels for f in fs), sum(f.dots.noise_blobs for f in fs)
+        notes.append(f"plate {name}, {_VIEW[side]} view, {len(fs)} image(s): {report_summary(rep)}; "
+                     f"{noise} one-level noise blobs and {hot} hot pixels ignored")
 
 
 def _number_unanchored(found: list[_Found], notes: list) -> None:

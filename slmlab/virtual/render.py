@@ -19,6 +19,8 @@ set renders to the same bytes.
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -32,11 +34,14 @@ from ..images.boards import charuco_board
 from ..images.imageset import PlateSpec
 from ..io import SET_FORMAT, CalibrationSet, atomic_write_bytes, atomic_write_text, json_text, write_csv
 from .microscope import Microscope, Plate, from_dict
+from .rigs import rig_from_dict
 from .sessions import Session, tilt_matrix
 from .simulate import stage_origin
 
-__all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render_plate", "image_name", "write_png",
-           "expose", "render_board", "render_board_set", "board_orientation"]
+__all__ = ["dot_footprints", "footprints", "dot_coverage", "render_view", "render_pair", "render_set", "render_plate",
+           "image_name", "write_png", "expose", "render_board", "board_reflectance", "render_board_set",
+           "board_orientation", "Degradations", "RIG_LOOKS", "DEGRADATIONS", "rig_degradations", "camera_image",
+           "render_rig_view", "visible_dots", "check_renderable", "render_rig_set", "set_camera", "rendered_truth"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -50,10 +55,18 @@ def dot_footprints(microscope: Microscope, points_mm: np.ndarray, plate: Plate, 
 
     The Jacobian maps a displacement in the plate plane (plate x, y axes, mm) to image pixels.
     """
-    r = plate.orientation()
-    c = microscope.project_view(points_mm, side)
-    ex = microscope.project_view(points_mm + h_mm * r[:, 0], side)
-    ey = microscope.project_view(points_mm + h_mm * r[:, 1], side)
+    return footprints(microscope, points_mm, plate.orientation(), side, h_mm)
+
+
+def footprints(rig, points_mm: np.ndarray, orientation: np.ndarray, side: str, h_mm: float = 1e-4
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Image centres ``(n, 2)`` [px] and local Jacobians ``(n, 2, 2)`` [px/mm] in view ``side`` of any rig
+    (its ``project_view``) of a plane whose ``x, y`` axes are the first two columns of ``orientation``, at
+    rig-frame points ``(n, 3)`` [mm] (forward differences of ``h_mm``)."""
+    r = np.asarray(orientation, float)
+    c = rig.project_view(points_mm, side)
+    ex = rig.project_view(points_mm + h_mm * r[:, 0], side)
+    ey = rig.project_view(points_mm + h_mm * r[:, 1], side)
     jac = np.stack([(ex - c) / h_mm, (ey - c) / h_mm], axis=2)
     return c, jac
 
@@ -99,6 +112,41 @@ def _coverage(centres: np.ndarray, jac_px: np.ndarray, half: int) -> tuple[np.nd
     return np.clip(0.5 - dist, 0.0, 1.0).astype(np.float32), top_left
 
 
+def dot_coverage(size_px: tuple[int, int], centres: np.ndarray, jac_px: np.ndarray, blur_px: np.ndarray,
+                 sigma_px: float) -> np.ndarray:
+    """How much of each pixel of an image of ``size_px = (width, height)`` the dots cover [0..1, float32]:
+    each dot the ellipse ``centre + jac_px · unit disk`` (:func:`_coverage`), convolved with its defocus
+    pillbox of radius ``blur_px`` and the diffraction Gaussian of σ ``sigma_px`` (:func:`_psf`); overlapping
+    blur adds and is clipped at 1."""
+    width, height = size_px
+    dots = np.zeros((height, width), np.float32)
+    blur, sigma = blur_px, sigma_px
+    extent = np.linalg.norm(jac_px, 2, axis=(1, 2)) + 2
+    inside = ((centres > -extent[:, None] - blur[:, None] - 4 * sigma).all(axis=1)
+              & (centres[:, 0] < width + extent + blur + 4 * sigma) & (centres[:, 1] < height + extent + blur + 4 * sigma))
+    if inside.any():
+        cov, top_left = _coverage(centres[inside], jac_px[inside], int(np.ceil(extent[inside].max())))
+        for patch0, (x0, y0), b in zip(cov, top_left, blur[inside]):
+            _add_blurred(dots, patch0, x0, y0, b, sigma)
+    np.minimum(dots, 1.0, out=dots)
+    return dots
+
+
+def _add_blurred(image: np.ndarray, patch0: np.ndarray, x0: int, y0: int, blur: float, sigma: float) -> None:
+    """Add a coverage patch whose top-left pixel is ``(x0, y0)``, blurred by :func:`_psf`, into ``image``
+    (in place; the parts outside the image are dropped)."""
+    height, width = image.shape
+    k = _psf(int(round(blur * 20)), int(round(sigma * 20)))
+    pad = k.shape[0] // 2
+    patch = cv2.filter2D(cv2.copyMakeBorder(patch0, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0),
+                         -1, k, borderType=cv2.BORDER_CONSTANT)
+    x0, y0 = x0 - pad, y0 - pad
+    xa, ya = max(x0, 0), max(y0, 0)
+    xb, yb = min(x0 + patch.shape[1], width), min(y0 + patch.shape[0], height)
+    if xa < xb and ya < yb:
+        image[ya:yb, xa:xb] += patch[ya - y0:yb - y0, xa - x0:xb - x0]
+
+
 def render_view(microscope: Microscope, points_mm: np.ndarray, plate: Plate, side: str,
                 rng: np.random.Generator) -> np.ndarray:
     """One 8-bit image (``height × width``) of the plate's dots at microscope-frame positions ``points_mm``."""
@@ -107,24 +155,7 @@ def render_view(microscope: Microscope, points_mm: np.ndarray, plate: Plate, sid
     centres, jac = dot_footprints(microscope, points_mm, plate, side)
     rho = plate.dot_diameter_mm / 2
     blur, sigma = im.blur_px(points_mm[:, 2], o.pixel_mm)
-    dots = np.zeros((height, width), np.float32)
-    jp = jac * rho
-    extent = np.linalg.norm(jp, 2, axis=(1, 2)) + 2
-    inside = ((centres > -extent[:, None] - blur[:, None] - 4 * sigma).all(axis=1)
-              & (centres[:, 0] < width + extent + blur + 4 * sigma) & (centres[:, 1] < height + extent + blur + 4 * sigma))
-    if inside.any():
-        cov, top_left = _coverage(centres[inside], jp[inside], int(np.ceil(extent[inside].max())))
-        for patch0, (x0, y0), b in zip(cov, top_left, blur[inside]):
-            k = _psf(int(round(b * 20)), int(round(sigma * 20)))
-            pad = k.shape[0] // 2
-            patch = cv2.filter2D(cv2.copyMakeBorder(patch0, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0),
-                                 -1, k, borderType=cv2.BORDER_CONSTANT)
-            x0, y0 = x0 - pad, y0 - pad
-            xa, ya = max(x0, 0), max(y0, 0)
-            xb, yb = min(x0 + patch.shape[1], width), min(y0 + patch.shape[0], height)
-            if xa < xb and ya < yb:
-                dots[ya:yb, xa:xb] += patch[ya - y0:yb - y0, xa - x0:xb - x0]
-    np.minimum(dots, 1.0, out=dots)
+    dots = dot_coverage((width, height), centres, jac * rho, blur, sigma)
     reflectance = 1.0 - np.float32(1.0 - im.dot_dn / im.background_dn) * dots
     return expose(reflectance, im, rng)
 
@@ -177,11 +208,14 @@ def render_set(cal: CalibrationSet, out_dir: str | Path, *, progress: bool | Non
     """Render every stereo pair of a *simulated* set into ``out_dir/images/``.
 
     Uses the simulator's parameters, seed and stage origin stored in ``cal.meta["simulator"]`` and the true
-    dot positions of ``cal.truth``, so the rendered centres are exactly those of ``truth.csv``.
+    dot positions of ``cal.truth``, so the rendered centres are exactly those of ``truth.csv``. A set simulated
+    on a zoo rig is rendered by its cameras (:func:`render_rig_set`, every sequence).
     """
     sim = cal.meta.get("simulator")
     if sim is None or cal.truth is None:
         raise SlmlabError("only simulated sets (with truth.csv and meta.json's 'simulator') can be rendered", cal.path)
+    if "rig" in sim["microscope"]:
+        return render_rig_set(cal, out_dir, progress=progress)
     microscope = from_dict(sim["microscope"])
     origin = np.asarray(sim["stage_origin_mm"])
     seed = int(sim["seed"])
@@ -235,7 +269,7 @@ def _plate_points_of_pixels(microscope: Microscope, centre_mm, orientation, side
                             iterations: int = 6):
     """Plate-frame coordinates ``(x, y)`` [mm] of a coarse grid of image pixels (every ``step_px``) of view
     ``side``: where each pixel's ray meets the plate plane, by Newton on :meth:`Microscope.project_view`."""
-    width, height = microscope.optics.image_size_px
+    width, height = microscope.image_size_px
     us, vs = np.arange(0, width + step_px, step_px, dtype=float), np.arange(0, height + step_px, step_px, dtype=float)
     u, v = np.meshgrid(us, vs)
     target = np.column_stack([u.ravel(), v.ravel()])
@@ -283,22 +317,31 @@ def render_board(microscope: Microscope, texture: np.ndarray, texture_px_per_mm:
     area-integrated over the pixel's footprint, blurred by the defocus at the target's centre (pillbox and
     diffraction Gaussian, as the dots) and exposed with vignetting, shot and read noise (:func:`expose`)."""
     o, im = microscope.optics, microscope.imaging
-    width, height = o.image_size_px
+    footprint = max(int(round(texture_px_per_mm * o.pixel_mm)), 1)   # texture px per image px
+    blur, sigma = im.blur_px(np.array([centre_mm[2]]), o.pixel_mm)
+    refl = board_reflectance(microscope, texture, texture_px_per_mm, board_size_mm, centre_mm, orientation, side,
+                             footprint, float(blur[0]), sigma)
+    dark = im.dot_dn / im.background_dn
+    return expose(dark + (1.0 - dark) * refl, im, rng)
+
+
+def board_reflectance(rig, texture: np.ndarray, texture_px_per_mm: float, board_size_mm, centre_mm, orientation,
+                      side: str, footprint_px: int, blur_px: float, sigma_px: float) -> np.ndarray:
+    """The reflectance [0..1, float32] each image pixel of view ``side`` of any rig sees of a printed target
+    (:func:`render_board`): rays traced to the target plane, the texture area-integrated over
+    ``footprint_px`` texture pixels per image pixel, blurred by the defocus ``blur_px`` and ``sigma_px``."""
+    width, height = rig.image_size_px
     step = 8
-    xy = _plate_points_of_pixels(microscope, centre_mm, orientation, side, step)
+    xy = _plate_points_of_pixels(rig, centre_mm, orientation, side, step)
     bw, bh = board_size_mm
     tx = (xy[..., 0] + bw / 2) * texture_px_per_mm - 0.5        # texture columns (pixel centres at integers)
     ty = (bh / 2 - xy[..., 1]) * texture_px_per_mm - 0.5        # texture rows (y up the board, rows down)
     mx, my = _upsample(tx, step, width, height), _upsample(ty, step, width, height)
-    footprint = max(int(round(texture_px_per_mm * o.pixel_mm)), 1)   # texture px per image px
-    tex = cv2.blur(texture.astype(np.float32) / 255.0, (footprint, footprint)) if footprint > 1 else \
+    tex = cv2.blur(texture.astype(np.float32) / 255.0, (footprint_px, footprint_px)) if footprint_px > 1 else \
         texture.astype(np.float32) / 255.0
     refl = cv2.remap(tex, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=1.0)
-    blur, sigma = im.blur_px(np.array([centre_mm[2]]), o.pixel_mm)
-    k = _psf(int(round(blur[0] * 20)), int(round(sigma * 20)))
-    refl = cv2.filter2D(refl, -1, k, borderType=cv2.BORDER_REPLICATE)
-    dark = im.dot_dn / im.background_dn
-    return expose(dark + (1.0 - dark) * refl, im, rng)
+    k = _psf(int(round(blur_px * 20)), int(round(sigma_px * 20)))
+    return cv2.filter2D(refl, -1, k, borderType=cv2.BORDER_REPLICATE)
 
 
 def board_orientation(microscope: Microscope, tilt_deg=(0.0, 0.0)) -> np.ndarray:
@@ -365,3 +408,443 @@ def render_board_set(out_dir: str | Path, microscope: Microscope, board: dict, s
     atomic_write_text(out / "meta.json", json_text(meta))
     write_csv(out / "truth.csv", pd.concat(truth, ignore_index=True))
     return out
+
+
+# ------------------------------------------------------------------------------------------------ any rig
+@dataclass(frozen=True)
+class Degradations:
+    """What a real camera adds to the optics of a rig's image (:func:`render_rig_view`). The rig itself gives
+    the dots' perspective (oblique ellipses) and their defocus (varying across the field and with depth:
+    its ``blur_px``); these are the camera's and the set-up's.
+
+    Attributes
+    ----------
+    bits
+        bit depth of the image (8, 12 or 16; 12-bit images are written in 16-bit PNGs, as cameras do).
+    dark
+        dark dots on a bright plate (``True``) or bright dots on a dark one.
+    background_dn, contrast_dn
+        grey level of the plate, and how far a dot's centre is from it (darker or brighter) [DN].
+    defocus_px
+        extra defocus (a pillbox radius) at the image corner farthest from a line of best focus through the
+        image centre, growing linearly across the field (a camera slightly out of focus or tilted) [px].
+    focus_angle_deg
+        direction across which that defocus grows [degree].
+    read_noise_dn, shot_dn_per_e
+        Gaussian read noise [DN]; gain for shot noise [DN per electron] (0: none).
+    hot_pixel_fraction
+        share of pixels stuck between half and full scale (the same pixels in every image of a view).
+    gradient, gradient_angle_deg
+        relative illumination change from one image edge to the other, and its direction [-, degree].
+    vignetting
+        relative illumination loss at the image corners (quadratic) [-].
+    bright_region
+        peak of a bright out-of-focus region (a blurred disk beside the plate, additive), in units of the
+        dots' contrast [-].
+    streaks
+        depth of vertical window streaks (a multiplicative modulation; the same in every image of a view) [-].
+    text_strip_px
+        height of a camera text strip over the image's bottom rows [px].
+    """
+
+    bits: int = 8
+    dark: bool = False
+    background_dn: float = 13.0
+    contrast_dn: float = 137.0
+    defocus_px: float = 0.0
+    focus_angle_deg: float = 30.0
+    read_noise_dn: float = 1.0
+    shot_dn_per_e: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    gradient: float = 0.0
+    gradient_angle_deg: float = 20.0
+    vignetting: float = 0.0
+    bright_region: float = 0.0
+    streaks: float = 0.0
+    text_strip_px: int = 0
+
+
+#: each rig kind's camera as a lab would have it: a microscope's backlit plate with vignetting; a DIC pair's
+#: printed target under uneven light; a PIV pair's bright dots through a window, with a bright region
+#: beside the plate, streaks and the camera's text strip, 60-80 grey levels over 13 (the held-out rig)
+RIG_LOOKS = {
+    "microscope": Degradations(dark=True, background_dn=200.0, contrast_dn=160.0, read_noise_dn=1.5,
+                               shot_dn_per_e=0.3, vignetting=0.3, gradient=0.1),
+    "greenough": Degradations(dark=True, background_dn=200.0, contrast_dn=160.0, read_noise_dn=1.5,
+                              shot_dn_per_e=0.3, vignetting=0.3, gradient=0.1),
+    "stereo-dic": Degradations(dark=True, background_dn=190.0, contrast_dn=160.0, read_noise_dn=1.5,
+                               shot_dn_per_e=0.3, gradient=0.3, vignetting=0.25, hot_pixel_fraction=1e-4),
+    "stereo-piv": Degradations(dark=False, background_dn=13.0, contrast_dn=70.0, read_noise_dn=1.5,
+                               shot_dn_per_e=0.2, gradient=0.25, vignetting=0.15, bright_region=1.6, streaks=0.1,
+                               text_strip_px=36, hot_pixel_fraction=2e-4),
+}
+#: the degradations one at a time (changes of a clean camera of the rig's polarity), the rig's own camera
+#: (``RIG_LOOKS``), and all together
+DEGRADATIONS = {
+    "clean": {},
+    "defocus": {"defocus_px": 5.0},
+    "low contrast": {"contrast_dn": 60.0, "read_noise_dn": 1.5},
+    "lowest contrast": {"contrast_dn": 20.0, "read_noise_dn": 1.5},
+    "noise": {"read_noise_dn": 6.0, "shot_dn_per_e": 0.5},
+    "12 bit": {"bits": 12, "contrast_dn": 60.0 * 16, "read_noise_dn": 1.5 * 16},
+    "16 bit": {"bits": 16, "contrast_dn": 60.0 * 256, "read_noise_dn": 1.5 * 256},
+    "hot pixels": {"hot_pixel_fraction": 2e-3},
+    "gradient": {"gradient": 0.8},
+    "vignetting": {"vignetting": 0.6},
+    "bright region": {"bright_region": 1.5},
+    "streaks": {"streaks": 0.35},
+    "text strip": {"text_strip_px": 40},
+    "the rig's camera": None,
+    "all together": {"defocus_px": 4.0, "contrast_dn": 60.0, "read_noise_dn": 2.0, "shot_dn_per_e": 0.3,
+                     "hot_pixel_fraction": 1e-3, "gradient": 0.5, "vignetting": 0.4, "bright_region": 1.5,
+                     "streaks": 0.3, "text_strip_px": 40},
+}
+
+
+def rig_degradations(kind: str, degradation: str | None = None) -> Degradations:
+    """The camera of a rig ``kind`` (:data:`RIG_LOOKS`), or one of :data:`DEGRADATIONS` on a clean camera of
+    that kind's polarity (plate and dot levels, bit depth, read noise 1 DN, nothing else)."""
+    own = RIG_LOOKS.get(kind, RIG_LOOKS["microscope"])
+    if degradation is None or degradation == "the rig's camera":
+        return own
+    if degradation not in DEGRADATIONS:
+        raise SlmlabError(f"unknown degradation {degradation!r}; choose one of {', '.join(DEGRADATIONS)}")
+    clean = Degradations(dark=own.dark, background_dn=own.background_dn, contrast_dn=150.0 - 13.0 if not own.dark
+                         else own.contrast_dn)
+    change = dict(DEGRADATIONS[degradation])
+    if change.get("bits", 8) != 8:
+        change["background_dn"] = clean.background_dn * 2 ** (change["bits"] - 8)
+    return replace(clean, **change)
+
+
+def _extra_defocus(centres: np.ndarray, size_px, deg: Degradations) -> np.ndarray:
+    """Per-dot extra defocus radius [px] (:attr:`Degradations.defocus_px`): zero on the line of best focus
+    through the image centre, growing linearly to ``defocus_px`` at the farthest image corner."""
+    if not deg.defocus_px:
+        return np.zeros(len(centres))
+    w, h = size_px
+    a = np.radians(deg.focus_angle_deg)
+    n = np.array([np.cos(a), np.sin(a)])
+    c0 = np.array([(w - 1) / 2, (h - 1) / 2])
+    far = np.max(np.abs(np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]]) * c0 @ n))
+    return deg.defocus_px * np.abs((centres - c0) @ n) / far
+
+
+def _streaks(w: int, h: int, depth: float, rng: np.random.Generator) -> np.ndarray:
+    """Vertical window streaks ``(h, w)`` [-]: a relative modulation, a sum of narrow column bands of random
+    sign, width 2..20 px and depth up to ``depth``, each fading slowly along the column."""
+    x = np.arange(w, dtype=np.float32)
+    y = np.arange(h, dtype=np.float32) / h
+    out = np.zeros((h, w), np.float32)
+    for _ in range(max(3, w // 60)):
+        x0, width = rng.uniform(0, w), rng.uniform(2, 20)
+        amp = depth * rng.uniform(-1, 1)
+        col = np.exp(-0.5 * ((x - x0) / width) ** 2).astype(np.float32)
+        fade = (1 + 0.5 * np.sin(2 * np.pi * (rng.uniform(0.3, 1.5) * y + rng.uniform(0, 1)))).astype(np.float32)
+        out += np.float32(amp) * fade[:, None] * col[None, :]
+    return out
+
+
+def _bright_region(w: int, h: int, dots_px: np.ndarray, amplitude_dn: float) -> np.ndarray:
+    """A bright out-of-focus region ``(h, w)`` [DN]: a disk of radius 1/8 of the smaller image side, blurred
+    over a third of its radius, just right of the plate's rightmost dots (over them if the plate fills the
+    field), a little below their middle."""
+    r = min(w, h) / 8
+    right = float(dots_px[:, 0].max()) if len(dots_px) else w / 2
+    cx = min(right + 0.9 * r, w - 0.3 * r)
+    cy = (float(np.median(dots_px[:, 1])) if len(dots_px) else h / 2) + 0.15 * h
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    disk = np.clip(np.float32(r) - np.hypot(xx - np.float32(cx), yy - np.float32(cy)), 0, 1)
+    blur = cv2.GaussianBlur(disk, (0, 0), r / 3)
+    return np.float32(amplitude_dn) * blur / max(float(blur.max()), 1e-6)
+
+
+def _text_strip(img: np.ndarray, height_px: int, full_dn: float) -> None:
+    """A camera text strip over the bottom ``height_px`` rows (in place): a dark band with bright text."""
+    h, w = img.shape
+    band = np.zeros((height_px, w), np.float32)
+    text = "CAM 1  2014-07-12 10:32:11.125  f/8  1/250 s  #000123  EXP 4000 us  GAIN 0 dB  FRAME 12"
+    scale = height_px / 45
+    cv2.putText(band, text, (8, int(height_px * 0.72)), cv2.FONT_HERSHEY_SIMPLEX, scale, float(full_dn),
+                max(1, int(round(2 * scale))), cv2.LINE_AA)
+    img[h - height_px:] = band
+
+
+def _light(deg: Degradations, w: int, h: int, sensor: np.random.Generator, dots_px: np.ndarray):
+    """The camera's noise-free light: the gain ``(h, w)`` on the scene (illumination gradient, vignetting,
+    window streaks) and the additive bright region ``(h, w)`` [DN] (or ``None``); draws the streaks from
+    ``sensor`` (before the hot pixels)."""
+    a = np.radians(deg.gradient_angle_deg)
+    x = (np.arange(w, dtype=np.float32) - (w - 1) / 2) / ((w - 1) / 2)
+    y = (np.arange(h, dtype=np.float32) - (h - 1) / 2) / ((h - 1) / 2)
+    gain = _illumination(w, h, deg.vignetting) + np.float32(deg.gradient / 2) * (
+        np.float32(np.cos(a)) * x[None, :] + np.float32(np.sin(a)) * y[:, None])
+    if deg.streaks:
+        gain *= 1.0 + _streaks(w, h, deg.streaks, sensor)
+    region = _bright_region(w, h, dots_px, deg.bright_region * deg.contrast_dn) if deg.bright_region else None
+    return gain, region
+
+
+def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generator, sensor: np.random.Generator,
+                 dots_px: np.ndarray) -> np.ndarray:
+    """The camera's image (``uint8``, or ``uint16`` above 8 bits) of a dot coverage image (:func:`dot_coverage`)
+    with the :class:`Degradations`: the plate's and the dots' levels, illumination (gradient, vignetting),
+    window streaks, a bright region beside the plate (``dots_px``: the dots' image centres) (:func:`_light`),
+    shot and read noise, hot pixels, a text strip, quantisation. ``rng`` draws this image's noise; ``sensor``
+    what is the same in every image of the camera (its streaks and hot pixels: seed it per view)."""
+    h, w = coverage.shape
+    full = float(2 ** deg.bits - 1)
+    sign = -1.0 if deg.dark else 1.0
+    gain, region = _light(deg, w, h, sensor, dots_px)
+    hot = sensor.choice(h * w, int(deg.hot_pixel_fraction * h * w), replace=False) if deg.hot_pixel_fraction else None
+    radiance = (np.float32(deg.background_dn) + np.float32(sign * deg.contrast_dn) * coverage) * gain
+    if region is not None:
+        radiance += region
+    if deg.shot_dn_per_e:
+        radiance += rng.standard_normal((h, w), dtype=np.float32) * np.sqrt(
+            np.maximum(radiance, 0) * np.float32(deg.shot_dn_per_e))
+    radiance += rng.standard_normal((h, w), dtype=np.float32) * np.float32(deg.read_noise_dn)
+    if hot is not None:
+        radiance.ravel()[hot] = sensor.uniform(0.5, 1.0, len(hot)).astype(np.float32) * np.float32(full)
+    if deg.text_strip_px:
+        _text_strip(radiance, deg.text_strip_px, full)
+    return np.clip(np.rint(radiance), 0, full).astype(np.uint8 if deg.bits == 8 else np.uint16)
+
+
+def _polygon_coverage(image: np.ndarray, vertices_px: np.ndarray, blur: float, sigma: float, oversample: int = 8
+                      ) -> None:
+    """Add a filled polygon (a plate's marker) with image vertices ``(k, 2)`` [px] into a coverage image (in
+    place, clipped at 1): area coverage by ``oversample``² sub-pixels, blurred as the dots are."""
+    x0, y0 = np.floor(vertices_px.min(axis=0)).astype(int) - 1
+    x1, y1 = np.ceil(vertices_px.max(axis=0)).astype(int) + 2
+    canvas = np.zeros(((y1 - y0) * oversample, (x1 - x0) * oversample), np.uint8)
+    pts = np.rint((vertices_px - [x0 - 0.5, y0 - 0.5]) * oversample - 0.5).astype(np.int32)
+    cv2.fillPoly(canvas, [pts], 255)
+    patch = cv2.resize(canvas.astype(np.float32) / 255.0, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    _add_blurred(image, patch, int(x0), int(y0), blur, sigma)
+    np.minimum(image, 1.0, out=image)
+
+
+def render_rig_view(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
+                    deg: Degradations, rng: np.random.Generator, sensor: np.random.Generator,
+                    markers: list | None = None) -> np.ndarray:
+    """One camera image of dots at rig-frame points ``(n, 3)`` [mm] on a plane of ``orientation`` (columns: its
+    ``x, y`` axes) through any rig (its ``project_view`` and ``blur_px``, as :class:`slmlab.virtual.rigs.StereoRig`
+    and the CMO microscope answer): each dot the ellipse the local Jacobian makes of it (:func:`footprints`),
+    defocused by the rig's blur at its depth and place plus the camera's (:attr:`Degradations.defocus_px`),
+    then the camera's degradations (:func:`camera_image`). ``markers``: polygons on the plate, each ``(k, 3)``
+    rig-frame vertices [mm] (a square and a triangle, as stereo-PIV plates have)."""
+    size = tuple(rig.image_size_px)
+    centres, jac = footprints(rig, points_mm, orientation, side)
+    blur, sigma = rig.blur_px(points_mm, side)
+    blur = np.asarray(blur, float) + _extra_defocus(centres, size, deg)
+    cov = dot_coverage(size, centres, jac * dot_diameter_mm / 2, blur, sigma)
+    for vertices in markers or []:
+        mid = np.asarray(vertices, float).mean(axis=0, keepdims=True)
+        b, _ = rig.blur_px(mid, side)
+        px = rig.project_view(np.asarray(vertices, float), side)
+        if np.isfinite(px).all() and _inside_px(px, size):
+            _polygon_coverage(cov, px, float(b[0]) + float(_extra_defocus(px.mean(axis=0)[None], size, deg)[0]), sigma)
+    return camera_image(cov, deg, rng, sensor, centres)
+
+
+def _inside_px(px: np.ndarray, size_px) -> bool:
+    """Whether all points ``(k, 2)`` [px] are inside an image of ``size_px = (width, height)``."""
+    w, h = size_px
+    return bool(((px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)).all())
+
+
+def visible_dots(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
+                 deg: Degradations, sensor: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """True image centres ``(n, 2)`` [px] of dots rendered by :func:`render_rig_view`, and which of them are
+    visible: the whole ellipse at least 1 px inside the image and above the text strip, and, with the
+    camera's ``sensor`` stream, at least a quarter of the dot's contrast left between the noise-free dot and
+    plate levels once clipped to full scale (a bright region can saturate both)."""
+    w, h = rig.image_size_px
+    c, jac = footprints(rig, points_mm, orientation, side)
+    jp = jac * dot_diameter_mm / 2
+    hx, hy = np.hypot(jp[:, 0, 0], jp[:, 0, 1]), np.hypot(jp[:, 1, 0], jp[:, 1, 1])
+    vis = ((c[:, 0] - hx >= 1) & (c[:, 0] + hx <= w - 2) & (c[:, 1] - hy >= 1)
+           & (c[:, 1] + hy <= h - 2 - deg.text_strip_px))
+    if sensor is not None and vis.any():
+        gain, region = _light(deg, w, h, sensor, c)
+        y, x = np.clip(np.rint(c[:, 1]).astype(int), 0, h - 1), np.clip(np.rint(c[:, 0]).astype(int), 0, w - 1)
+        g, add = gain[y, x], (0.0 if region is None else region[y, x])
+        full = float(2 ** deg.bits - 1)
+        plate = np.clip(deg.background_dn * g + add, 0, full)
+        dot = np.clip((deg.background_dn + (-1 if deg.dark else 1) * deg.contrast_dn) * g + add, 0, full)
+        vis &= np.abs(plate - dot) >= 0.25 * deg.contrast_dn * g
+    return c, vis
+
+
+def _sensor_rng(seed: int, side: str) -> np.random.Generator:
+    """The random stream of what one camera shows in every image (streaks, hot pixels)."""
+    return np.random.default_rng([int(seed), 22, 0 if side == "l" else 1])
+
+
+def _target_axes(rig) -> np.ndarray:
+    """Orthonormal ``3 × 2`` axes (columns) of a known target mounted along the stage's x and y axes."""
+    a = np.asarray(rig.stage.axes, float)
+    x = a[:, 0] / np.linalg.norm(a[:, 0])
+    y = a[:, 1] - (a[:, 1] @ x) * x
+    return np.column_stack([x, y / np.linalg.norm(y)])
+
+
+def _two_level_markers(plate: dict, origin_world: np.ndarray, to_rig) -> list:
+    """A two-level plate's square and triangle (rig-frame vertices [mm]) in the holes beside its origin dot:
+    the triangle half a pitch along ``+x``, the square half a pitch along ``+y`` (the stereo-PIV convention
+    :func:`slmlab.images.lattice.origin_frame` reads), each about half a dot's area (so that the parallax of
+    an oblique view does not bring them into the second level's dots beside them), on the first level."""
+    unit, d = plate["pitch_mm"] / 2, plate["dot_diameter_mm"]
+    t = np.radians([90.0, 210.0, 330.0])
+    triangle = np.column_stack([unit + 0.55 * d * np.cos(t), 0.55 * d * np.sin(t)])
+    square = np.array([[-0.3, -0.3], [0.3, -0.3], [0.3, 0.3], [-0.3, 0.3]]) * d + [0.0, unit]
+    return [to_rig(origin_world + np.column_stack([v, np.zeros(len(v))])) for v in (triangle, square)]
+
+
+def _rig_scenes(cal: CalibrationSet, rig):
+    """Per stage position ``(sequence, position)``: the rig-frame dots ``(n, 3)`` [mm], the plate's axes
+    ``(3, 2)``, its dot diameter [mm], its ``meta.json`` name and its markers (a two-level plate's)."""
+    sim = cal.meta["simulator"]
+    origin = np.asarray(sim["stage_origin_mm"])
+    known = "x_mm" in cal.points.columns
+    truth, pts = cal.truth, cal.points
+    for (seq, pos), idx in truth.groupby(["sequence", "position"], sort=False).indices.items():
+        world = truth.iloc[idx][["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+        p = rig.stage_to_microscope(world, origin)
+        name = "grid" if seq == "grid" else "moving"
+        plate = cal.meta["plates"][name]
+        markers = []
+        if known:
+            axes = _target_axes(rig)
+            local = pts.iloc[idx][["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+            if int(plate.get("levels", 1)) == 2:
+                markers = _two_level_markers(plate, (world - local)[0],
+                                             lambda w: rig.stage_to_microscope(w, origin))
+        else:
+            axes = (rig.grid_plate if name == "grid" else rig.moving_plate).orientation()[:, :2]
+        yield seq, int(pos), p, axes, float(plate.get("dot_diameter_mm", 0.0)), name, markers
+
+
+def check_renderable(cal: CalibrationSet) -> None:
+    """Raise :class:`SlmlabError` (before anything is written) for a simulated set whose images would not be
+    extractable: a stepped target's heights are not described by ``meta.json``."""
+    if (cal.meta.get("simulator") or {}).get("design") == "stepped-target":
+        raise SlmlabError("the stepped target's dots sit at five heights that meta.json cannot describe, so its "
+                          "images could not be extracted into its known target; render another design (a Z stack, "
+                          "the stage sequences, a two-level plate or a ChArUco stack) or leave out --images")
+
+
+def render_rig_set(cal: CalibrationSet, out_dir: str | Path, deg: Degradations | None = None, *,
+                   progress: bool | None = None) -> list[Path]:
+    """Render every stereo pair of a set simulated on a zoo rig (:func:`slmlab.virtual.designs.simulate_design`)
+    into ``out_dir/images/`` as the rig's cameras would (:func:`render_rig_view`; ``deg``: the camera, by default
+    the rig kind's, :data:`RIG_LOOKS`), write ``stage.csv`` naming the images and give the plates' polarity in
+    ``meta.json``, so that ``extract`` reads them. The dots are rendered at ``truth.csv``'s positions, so their
+    true image centres are ``truth.csv``'s; the camera is recorded in ``meta.json`` (``simulator.camera``). A ChArUco design renders the board (:func:`board_reflectance`); a
+    stepped target is refused (:class:`SlmlabError`): ``meta.json`` cannot describe its heights, so its images
+    could not be extracted into its known target."""
+    sim = cal.meta.get("simulator")
+    if sim is None or cal.truth is None:
+        raise SlmlabError("only simulated sets (with truth.csv and meta.json's 'simulator') can be rendered", cal.path)
+    check_renderable(cal)
+    rig = rig_from_dict(sim["microscope"])
+    deg = deg or rig_degradations(rig.kind)
+    out = Path(out_dir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    seed = int(sim["seed"])
+    if cal.meta["plates"]["moving"].get("pattern") == "charuco":
+        written = _render_rig_boards(cal, rig, deg, out, seed, progress)
+    else:
+        written = []
+        scenes = list(_rig_scenes(cal, rig))
+        for seq, pos, p, axes, diam, _, markers in tqdm(scenes, desc="rendering stereo pairs", unit="pair",
+                                                          disable=None if progress is None else not progress):
+            for side in "lr":
+                img = render_rig_view(rig, p, axes, diam, side, deg, _image_rng(seed, seq, pos, side),
+                                      _sensor_rng(seed, side), markers)
+                write_png(out / "images" / image_name(seq, pos, side), img)
+                written.append(out / "images" / image_name(seq, pos, side))
+    meta = json.loads(json_text(cal.meta))
+    for name in meta["plates"]:
+        if meta["plates"][name].get("pattern", "dots") == "dots":
+            meta["plates"][name]["dots"] = "dark" if deg.dark else "bright"
+    meta["simulator"]["camera"] = asdict(deg)
+    atomic_write_text(out / "meta.json", json_text(meta))
+    _write_stage(cal, out)
+    return written
+
+
+def _write_stage(cal: CalibrationSet, out: Path) -> None:
+    """``stage.csv`` naming each position's rendered images (``images/{sequence}_{position:03d}_{l|r}.png``)."""
+    rows = ["sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left_image,right_image"]
+    for r in cal.points.drop_duplicates(["sequence", "position"]).itertuples(index=False):
+        rows.append(f"{r.sequence},{r.position},{r.stage_x_mm:.6f},{r.stage_y_mm:.6f},{r.stage_z_mm:.6f},"
+                    f"images/{image_name(r.sequence, r.position, 'l')},images/{image_name(r.sequence, r.position, 'r')}")
+    atomic_write_text(out / "stage.csv", "\n".join(rows) + "\n")
+
+
+def _render_rig_boards(cal: CalibrationSet, rig, deg: Degradations, out: Path, seed: int, progress) -> list[Path]:
+    """The ChArUco design's images: the board (OpenCV's drawing, sampled at five texture pixels per image
+    pixel) at each stage position, its centre the target's origin, its axes the stage's (as the simulator
+    mounts a known target: with the stage's skew and scale errors, so that the corners are ``truth.csv``'s),
+    traced through the rig (:func:`board_reflectance`) and exposed as printed ink on a bright board by the
+    rig's camera."""
+    plate = cal.meta["plates"]["moving"]
+    spec = PlateSpec("moving", None, None, float(plate["pitch_mm"]), pattern="charuco", board=dict(plate["board"]))
+    sx, sy = (int(v) for v in plate["board"]["squares"])
+    size_mm = (sx * spec.pitch_mm, sy * spec.pitch_mm)
+    ppmm = 5.0 * rig.px_per_mm()                   # an odd footprint: the box filter is centred
+    texture = charuco_board(spec).generateImage((int(round(size_mm[0] * ppmm)), int(round(size_mm[1] * ppmm))),
+                                                marginSize=0)
+    ink = deg if deg.dark else replace(deg, dark=True, background_dn=deg.background_dn + deg.contrast_dn)
+    axes = np.asarray(rig.stage.axes, float)      # the target's frame is the stage's, skew and scale errors too
+    origin = np.asarray(cal.meta["simulator"]["stage_origin_mm"])
+    written = []
+    keys = cal.points.drop_duplicates(["sequence", "position"])[["sequence", "position"]].itertuples(index=False)
+    for seq, pos in tqdm(list(keys), desc="rendering stereo pairs", unit="pair",
+                         disable=None if progress is None else not progress):
+        sel = (cal.truth["sequence"] == seq) & (cal.truth["position"] == pos)
+        world = cal.truth.loc[sel, ["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
+        local = cal.points.loc[sel, ["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+        centre = rig.stage_to_microscope((world - local)[:1], origin)[0]
+        for side in "lr":
+            blur, sigma = rig.blur_px(centre[None], side)
+            refl = board_reflectance(rig, texture, ppmm, size_mm, centre, axes, side, 5, float(blur[0]), sigma)
+            img = camera_image(1.0 - refl, ink, _image_rng(seed, seq, int(pos), side), _sensor_rng(seed, side),
+                               np.empty((0, 2)))
+            write_png(out / "images" / image_name(seq, int(pos), side), img)
+            written.append(out / "images" / image_name(seq, int(pos), side))
+    return written
+
+
+def set_camera(cal: CalibrationSet) -> Degradations:
+    """The camera a rig set's images were rendered with (``meta.json``'s ``simulator.camera``, written by
+    :func:`render_rig_set`), or the rig kind's (:data:`RIG_LOOKS`)."""
+    sim = cal.meta["simulator"]
+    if "camera" in sim:
+        return Degradations(**sim["camera"])
+    return rig_degradations(sim["microscope"].get("rig", "microscope"))
+
+
+def rendered_truth(cal: CalibrationSet) -> pd.DataFrame:
+    """Every dot of a rendered rig set in every image, as :func:`render_rig_set` drew it: ``sequence, position,
+    view, row, col, w1, w2`` [px] (the true centre), ``visible`` (:func:`visible_dots`, for the camera the set
+    was rendered with, its streaks and bright region too), ``z_mm`` (rig frame, the focal plane at 0) and, for a known target, ``x_mm, y_mm`` (its
+    place on the target)."""
+    rig = rig_from_dict(cal.meta["simulator"]["microscope"])
+    deg = set_camera(cal)
+    frames = []
+    groups = cal.truth.groupby(["sequence", "position"], sort=False).indices
+    seed = int(cal.meta["simulator"]["seed"])
+    for seq, pos, p, axes, diam, _, _ in _rig_scenes(cal, rig):
+        idx = groups[(seq, pos)]
+        for side in "lr":
+            c, vis = visible_dots(rig, p, axes, diam, side, deg, _sensor_rng(seed, side))
+            f = pd.DataFrame({"sequence": seq, "position": pos, "view": side,
+                              "row": cal.truth["row"].to_numpy()[idx], "col": cal.truth["col"].to_numpy()[idx],
+                              "w1": c[:, 0], "w2": c[:, 1], "visible": vis, "z_mm": p[:, 2]})
+            if "x_mm" in cal.points.columns:
+                f["x_mm"], f["y_mm"] = cal.points["x_mm"].to_numpy()[idx], cal.points["y_mm"].to_numpy()[idx]
+            frames.append(f)
+    return pd.concat(frames, ignore_index=True)

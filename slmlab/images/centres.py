@@ -1,0 +1,327 @@
+"""Sub-pixel centres of a plate's dots (the paper's §3 input), three estimators on flat-fielded patches.
+
+Each dot's patch is flat-fielded by a background plane fitted on a ring outside the dot and its blur
+(:func:`flatten`), so that vignetting, a gradient or a bright region beside the dot does not pull its
+centre; how far the blurred dots reach is measured once per image on a sample of them (:func:`dot_reach`).
+
+* ``moments`` (:func:`refine_moments`): intensity-weighted centroid of the flat-fielded contrast inside an
+  anti-aliased circular window, re-centred each iteration. Uses every pixel of the dot and its blur: the most
+  precise far out of focus, but pulled by texture, scratches and streaks across the dot.
+* ``ellipse`` (:func:`refine_ellipse`): half-contrast crossings along 48 rays, fitted by a conic.
+* ``edges`` (:func:`refine_edges`): every half-contrast crossing between neighbouring pixels, the outermost
+  in each of :data:`SECTORS` directions fitted by a conic twice without outliers: the outline seen from
+  outside, so a textured or streaked dot, a hot speck or a donut's hole does not pull it; as accurate as
+  ``ellipse`` or more and several times faster.
+
+:func:`refine` applies one of them by name, and refines again the dots that moved far from their first
+guess (a coarse position from the local search).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .dots import as_float, gather_patches
+
+__all__ = ["METHODS", "SECTORS", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "refine_moments",
+           "refine_ellipse", "refine_edges", "refine"]
+
+#: the centre estimators, by name
+METHODS = ("moments", "ellipse", "edges")
+#: angular sectors of a dot's outline in :func:`refine_edges` (the outermost crossing of each is used)
+SECTORS = 64
+
+
+@dataclass
+class Flat:
+    """Flat-fielded contrast patches ``±(1 − I/B)`` around integer centres ``base``; ``B`` is a plane
+    (coefficients ``coef`` on offsets ``ox, oy``) fitted on a ring of integer offsets, the same ring for all
+    dots, so one pseudo-inverse serves the whole image."""
+
+    base: np.ndarray
+    ox: np.ndarray
+    oy: np.ndarray
+    contrast: np.ndarray
+    coef: np.ndarray
+
+
+def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool) -> Flat:
+    half = int(np.ceil(ring_in + 5))
+    p, base = gather_patches(img, centres, half)
+    p = p.astype(np.float32)
+    off = np.arange(-half, half + 1, dtype=np.float32)
+    oy, ox = np.meshgrid(off, off, indexing="ij")
+    d = np.hypot(ox, oy)
+    ring = (d > ring_in) & (d < ring_in + 4)
+    design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
+    coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
+    contrast = _contrast(p, _plane(coef, ox[None], oy[None]), dark)
+    return Flat(base, ox, oy, contrast, coef)
+
+
+def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
+    """A dot's contrast: ``1 − I/B`` for dark dots (flat-fielded: illumination scales plate and dot alike),
+    ``I − B`` for bright dots on a dark plate (whose background is an offset, often near zero)."""
+    if dark:
+        return 1.0 - values / np.maximum(background, 1.0)
+    return values - background
+
+
+def _plane(coef: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """Plane ``b0 + bx·dx + by·dy`` per dot; ``dx, dy`` have a leading axis of length ``n`` or 1."""
+    shape = (-1,) + (1,) * (max(np.ndim(dx), np.ndim(dy)) - 1)
+    return coef[:, 0].reshape(shape) + coef[:, 1].reshape(shape) * dx + coef[:, 2].reshape(shape) * dy
+
+
+def profile_radius(flat: Flat, radius: float) -> float:
+    """Radius [px] where the mean radial contrast profile of the dots falls to 2 % of its peak: the dot and
+    its defocus blur."""
+    d = np.rint(np.hypot(flat.ox, flat.oy)).astype(int).ravel()
+    prof = np.bincount(d, weights=flat.contrast.mean(axis=0).ravel()) / np.maximum(np.bincount(d), 1)
+    peak = prof[: max(int(radius), 1)].max()
+    beyond = np.flatnonzero((np.arange(len(prof)) > radius) & (prof < 0.02 * peak))
+    return float(beyond[0]) if len(beyond) else 1.5 * radius
+
+
+def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
+                   iterations: int = 3, reach: float | None = None) -> np.ndarray:
+    """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
+
+    ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
+    centre. The window is an anti-aliased disk reaching 1.5 px beyond where the dots' mean radial profile
+    falls to 2 % of its peak, re-centred on the estimate each iteration. Returns ``(n, 2)`` [px].
+    """
+    c = np.asarray(centres, float).copy()
+    if len(c) == 0:
+        return c
+    flat, reach = flat_patches(img, c, radii, dark, reach)
+    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5  # the window never reaches beyond (|c - base| <= 0.5)
+    ox, oy = flat.ox[disk], flat.oy[disk]
+    con = flat.contrast[:, disk]
+    # float32 is ample here: sums of a few thousand terms of size <= reach, relative error ~1e-6 px
+    for _ in range(iterations):
+        f = (c - flat.base).astype(np.float32)
+        win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
+                      0.0, 1.0)
+        w = con * win
+        s = w.sum(axis=1, dtype=np.float64)
+        s = np.where(np.abs(s) > 1e-9, s, 1e-9)
+        c = flat.base + np.column_stack([w @ ox, w @ oy]).astype(np.float64) / s[:, None]
+    return c
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``img`` at ``(x, y)`` [px] (any shape), replicating the border (``cv2.remap``)."""
+    f = as_float(img)
+    shape = np.broadcast(x, y).shape
+    n = shape[0] if len(shape) > 1 else 1
+    mx = np.broadcast_to(x, shape).astype(np.float32).reshape(n, -1)
+    my = np.broadcast_to(y, shape).astype(np.float32).reshape(n, -1)
+    return cv2.remap(f, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(shape)
+
+
+def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
+                   rays: int = 48, iterations: int = 2, reach: float | None = None) -> np.ndarray:
+    """Sub-pixel centres from an ellipse fitted to the half-contrast crossings along ``rays`` rays.
+
+    The contrast ``1 − I/B`` is flat-fielded as in :func:`refine_moments`; along each ray the first
+    crossing of half the dot's inner contrast is found by linear interpolation; the conic through the
+    crossings (algebraic least squares) gives the centre. Returns ``(n, 2)`` [px].
+    """
+    c = np.asarray(centres, float).copy()
+    if len(c) == 0:
+        return c
+    r = float(np.median(radii))
+    flat, reach = flat_patches(img, c, radii, dark, reach)
+    img = as_float(img)  # once, for the samples of every iteration
+    t = np.linspace(0, 2 * np.pi, rays, endpoint=False)
+    steps = np.linspace(0.0, 1.0, 96)
+    rad = steps * reach
+    ox = np.cos(t)[None, :, None] * rad[None, None, :]                          # (1, R, S) offsets
+    oy = np.sin(t)[None, :, None] * rad[None, None, :]
+    core = max(2, int(0.5 * len(steps) * r / reach))
+    for _ in range(iterations):
+        f = c - flat.base
+        vals = _bilinear(img, c[:, 0, None, None] + ox, c[:, 1, None, None] + oy)
+        con = _contrast(vals, _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None]), dark)
+        level = 0.5 * np.median(con[:, :, :core], axis=(1, 2))
+        below = con < level[:, None, None]
+        below[:, :, 0] = False
+        first = np.argmax(below, axis=2)                                        # (n, R)
+        ok = below.any(axis=2) & (first > 0)
+        k1 = np.maximum(first - 1, 0)
+        g0 = np.take_along_axis(con, k1[..., None], axis=2)[..., 0]
+        g1 = np.take_along_axis(con, first[..., None], axis=2)[..., 0]
+        frac = np.clip((g0 - level[:, None]) / np.where(g0 != g1, g0 - g1, 1.0), 0, 1)
+        rr = (steps[k1] + frac * (steps[1] - steps[0])) * reach
+        c = c + _ellipse_centres(np.cos(t)[None, :] * rr, np.sin(t)[None, :] * rr, ok)
+    return c
+
+
+def _ellipse_centres(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Centres of the conics ``x² + B xy + C y² + D x + E y + F = 0`` fitted to points ``(n, R)``."""
+    a = np.stack([x * y, y * y, x, y, np.ones_like(x)], axis=-1) * ok[..., None]
+    rhs = -(x * x) * ok
+    ata = np.einsum("nrk,nrl->nkl", a, a) + 1e-9 * np.eye(5)
+    atb = np.einsum("nrk,nr->nk", a, rhs)
+    return _conic_centre(np.linalg.solve(ata, atb[..., None])[..., 0])
+
+
+def _crossings(g, ox, oy):
+    """Half-contrast crossings between horizontally and vertically adjacent pixels of the patches ``g``
+    (contrast minus the level): dot index, x, y (offsets from the patch centre) [px]."""
+    out = []
+    for axis in (2, 1):
+        a = g[:, :, :-1] if axis == 2 else g[:, :-1, :]
+        b = g[:, :, 1:] if axis == 2 else g[:, 1:, :]
+        k, i, j = np.nonzero((a > 0) != (b > 0))
+        t = a[k, i, j] / (a[k, i, j] - b[k, i, j])
+        x = ox[i, j] + (t if axis == 2 else 0)
+        y = oy[i, j] + (t if axis == 1 else 0)
+        out.append((k, x, y))
+    k, x, y = (np.concatenate(v) for v in zip(*out))
+    order = np.argsort(k, kind="stable")
+    return k[order], x[order], y[order]
+
+
+_UPPER = [(p, q) for p in range(5) for q in range(p, 6)]   # the distinct entries of [AᵀA | Aᵀb]
+
+
+def _conic_fit(k: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares conics ``x² + Bxy + Cy² + Dx + Ey + F = 0`` through the points ``x, y`` of each dot
+    ``k`` (sorted by dot; normal equations summed per dot by ``reduceat``). Returns ``(B, C, D, E, F)``
+    ``(n, 5)`` and whether each dot had at least 6 points."""
+    t = np.column_stack([x * y, y * y, x, y, np.ones_like(x), -x * x])
+    prod = np.column_stack([t[:, p] * t[:, q] for p, q in _UPPER])
+    count = np.bincount(k, minlength=n)
+    ok = count >= 6
+    sums = np.zeros((n, len(_UPPER)))
+    if len(x):
+        starts = np.r_[0, np.cumsum(count)[:-1]]
+        has = count > 0
+        sums[has] = np.add.reduceat(prod, starts[has], axis=0)
+    full = np.zeros((n, 5, 6))
+    for c, (p, q) in enumerate(_UPPER):
+        full[:, p, q] = sums[:, c]
+        if q < 5:
+            full[:, q, p] = sums[:, c]
+    ata, atb = full[:, :, :5], full[:, :, 5]
+    ata[~ok] = np.eye(5)
+    return np.linalg.solve(ata, atb[..., None])[..., 0], ok
+
+
+def _conic_centre(coef: np.ndarray) -> np.ndarray:
+    """Centres ``(n, 2)`` of the conics ``x² + Bxy + Cy² + Dx + Ey + F = 0`` of coefficients ``(n, 5)``."""
+    B, C, D, E, _ = coef.T
+    den = 4 * C - B * B
+    den = np.where(np.abs(den) > 1e-12, den, 1e-12)
+    return np.column_stack([(B * E - 2 * C * D) / den, (B * D - 2 * E) / den])
+
+
+def _conic_distance(coef: np.ndarray, k: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """First-order distance [px] of points ``x, y`` of dots ``k`` from their dot's conic."""
+    B, C, D, E, F = coef[k].T
+    q = x * x + B * x * y + C * y * y + D * x + E * y + F
+    return q / np.maximum(np.hypot(2 * x + B * y + D, B * x + 2 * C * y + E), 1e-9)
+
+
+def _robust_conic(k: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Conics ``(n, 5)`` fitted to each dot's points, refitted without the points farther than three times
+    the dot's RMS distance (plus 0.05 px) from the first fit (a hot pixel or a scratch on the outline), and
+    whether each dot had 6 points at least."""
+    coef, ok = _conic_fit(k, x, y, n)
+    d = _conic_distance(coef, k, x, y)
+    rms = np.sqrt(np.bincount(k, d * d, minlength=n) / np.maximum(np.bincount(k, minlength=n), 1))
+    keep = np.abs(d) < 3 * rms[k] + 0.05
+    return _conic_fit(k[keep], x[keep], y[keep], n)
+
+
+def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool) -> float:
+    """How far the dots and their blur reach from their centres [px]: where their mean flat-fielded radial
+    profile falls to 2 % of its peak, plus 1.5 px (slmlab's rule in ``refine_moments``), measured on at most
+    16 of them; at most 1.6 radii + 3 px."""
+    r = float(np.median(radii))
+    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 16)).astype(int)]
+    return min(profile_radius(flatten(img, sample, 1.6 * r + 4, dark), r) + 1.5, 1.6 * r + 3)
+
+
+def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None):
+    """Flat-fielded contrast patches (:func:`flatten`) on a ring just outside the dots' reach, measured by
+    :func:`dot_reach` unless given [px]; and the reach."""
+    reach = dot_reach(img, centres, radii, dark) if reach is None else reach
+    return flatten(img, centres, reach + 1, dark), reach
+
+
+def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
+                 iterations: int = 1, reach: float | None = None) -> np.ndarray:
+    """Sub-pixel centres ``(n, 2)`` [px] from a conic fitted to the dots' half-contrast crossings.
+
+    The contrast is flat-fielded (:func:`flatten`: a plane fitted per dot on a ring outside the dot and its
+    blur); the level is half the median contrast of the dot's core; every
+    pair of horizontally or vertically adjacent pixels on either side of it gives a crossing (linear
+    interpolation). Of those between 0.3 of the radius and the blur's reach from the current centre, the
+    outermost in each of :data:`SECTORS` directions (the outline seen from outside, not the crossings of
+    dips inside the dot: a streak, texture, a donut's hole) are fitted by a conic; then in each direction
+    the crossing nearest that conic (not a hot speck beyond the outline) is taken and fitted again. Each
+    fit is repeated without the points off its first pass; all ``iterations`` times. Like :func:`refine_ellipse` it uses only the
+    dot's outline (noise in the background and texture or streaks across the dot pull it less than a
+    centroid), but it takes every crossing on the pixel grid instead of 48 interpolated rays: as accurate
+    on the rendered family and about ten times faster. ``reach`` [px]: the dots' reach if known
+    (:func:`dot_reach`)."""
+    c = np.asarray(centres, float).copy()
+    if len(c) == 0:
+        return c
+    flat, reach = flat_patches(img, c, radii, dark, reach)
+    r = float(np.median(radii))
+    core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
+    level = 0.5 * np.median(flat.contrast[:, core], axis=1)
+    h0, h1 = flat.ox.shape[0] // 2, int(np.ceil(reach)) + 2      # crossings only within the reach (+ 2 px)
+    win = slice(max(h0 - h1, 0), h0 + h1 + 1)
+    k, x, y = _crossings(flat.contrast[:, win, win] - level[:, None, None], flat.ox[win, win], flat.oy[win, win])
+    f = c - flat.base
+    for _ in range(iterations):
+        dx, dy = x - f[k, 0], y - f[k, 1]
+        d = np.hypot(dx, dy)
+        use = np.flatnonzero((d > 0.3 * r) & (d < reach))
+        ku, ang = k[use], np.arctan2(dy[use], dx[use])
+        first = use[_best_per_sector(ku, ang, -d[use], SECTORS)]            # the outermost crossings
+        coef, ok = _robust_conic(k[first], dx[first], dy[first], len(c))
+        # then, per sector, the crossing nearest that outline (not a hot speck or a scratch beyond it)
+        off = np.abs(_conic_distance(coef, ku, dx[use], dy[use]))
+        best = use[_best_per_sector(ku, ang, np.where(ok[ku], off, -d[use]), SECTORS)]
+        coef, ok = _robust_conic(k[best], dx[best], dy[best], len(c))
+        cen = np.where(ok[:, None], _conic_centre(coef), np.nan)
+        f = np.where(np.isfinite(cen), f + cen, f)
+    return flat.base + f
+
+
+def _best_per_sector(k: np.ndarray, angle: np.ndarray, score: np.ndarray, sectors: int) -> np.ndarray:
+    """Indices (sorted by dot) of the point of lowest ``score`` of each dot ``k`` in each of ``sectors``
+    equal angular sectors [rad]."""
+    sec = np.minimum(((angle + np.pi) / (2 * np.pi) * sectors).astype(int), sectors - 1)
+    key = k * sectors + sec
+    # one float sort: the key, then the lowest score first (score scaled into [0, 1) keeps keys apart)
+    s = score - score.min(initial=0.0)
+    order = np.argsort(key + s / (s.max(initial=0.0) + 1.0))
+    ks = key[order]
+    first = np.r_[True, ks[1:] != ks[:-1]]
+    return np.sort(order[first])
+
+
+def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool, method: str) -> np.ndarray:
+    """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured
+    once (:func:`dot_reach`); dots that moved more than two pixels from ``centres`` (a coarse first guess)
+    are refined again from where they moved to, flat-fielded on a ring around their new place."""
+    c = np.asarray(centres, float)
+    if len(c) == 0:
+        return c.reshape(0, 2).copy()
+    fn = {"moments": refine_moments, "ellipse": refine_ellipse, "edges": refine_edges}[method]
+    reach = dot_reach(img, c, radii, dark)
+    xy = fn(img, c, radii, dark=dark, reach=reach)
+    again = np.hypot(*(xy - c).T) > 2.0
+    if again.any():
+        xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach)
+    return xy
