@@ -13,7 +13,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-__all__ = ["run_notebook", "main"]
+__all__ = ["run_notebook", "main", "THREAD_VARIABLES"]
+
+#: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL), set to 1 unless given
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | None = None) -> float:
@@ -26,6 +29,8 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
     old = {k: os.environ.get(k) for k in (env or {})}
     os.environ.update(env or {})
     os.environ.setdefault("MPLBACKEND", "Agg")
+    for var in THREAD_VARIABLES:  # notebooks run side by side, one core each: BLAS threads would fight over them
+        os.environ.setdefault(var, "1")
     try:
         t0 = time.perf_counter()
         NotebookClient(nb, timeout=timeout_s, kernel_name="python3",

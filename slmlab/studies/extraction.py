@@ -232,7 +232,10 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
     found dots, the centre ``method`` the extraction chose, and ``note``: why a set could not be extracted
     (``extract``'s one-line error; then nothing is found)."""
-    base = Path(folder) if folder is not None else Path(tempfile.mkdtemp(prefix="slmlab-extraction-"))
+    if folder is None:  # a temporary folder, removed afterwards
+        with tempfile.TemporaryDirectory(prefix="slmlab-extraction-") as tmp:
+            return extraction_by_degradation(rigs, degradations, design=design, seed=seed, method=method, folder=tmp)
+    base = Path(folder)
     base.mkdir(parents=True, exist_ok=True)
     rows = []
     for rig in rigs:
