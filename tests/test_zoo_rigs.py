@@ -2,7 +2,6 @@
 every physical parameter drawn within its range, imaged by any design and damaged like a real session; every verb
 through the command line either succeeds with finite outputs or exits 2 with one line that says what to do."""
 
-import json
 import warnings
 
 import numpy as np
@@ -12,7 +11,7 @@ from hypothesis import strategies as st
 import slmlab
 from slmlab.virtual.designs import DESIGNS
 from slmlab.virtual.rigs import RIG_CLASSES
-from test_random_rigs import CORRUPTIONS, _numbers, check, corrupt, run
+from test_random_rigs import CORRUPTIONS, corrupt, every_model_through_every_verb, run
 
 MODELS = ("auto", "direct", "soloff", "polynomial")
 
@@ -35,18 +34,4 @@ def test_any_zoo_rig_and_design_through_every_verb(kind, rig_seed, design, how, 
         if damaged.empty:
             return
         d = slmlab.write_set(folder / "set", slmlab.CalibrationSet(damaged, cal.meta))
-        pts = folder / "points.csv"
-        damaged[["wl1", "wl2", "wr1", "wr2"]].dropna().head(50).to_csv(pts, index=False)
-        for model in MODELS:
-            out = folder / f"{model}.json"
-            if not check(*run("calibrate", d, "--model", model, "--out", out), d):
-                assert not out.exists()
-                event(f"{model}: exit 2")
-                continue
-            event(f"{model}: calibrated")
-            assert all(np.isfinite(v).all() for v in _numbers(json.loads(out.read_text())["parameters"])), model
-            rec = folder / f"{model}.csv"
-            if check(*run("reconstruct", out, pts, "--out", rec), pts):
-                xyz = np.loadtxt(rec, delimiter=",", skiprows=1, usecols=range(4, 7), ndmin=2)
-                assert np.isfinite(xyz).all(), model
-            check(*run("evaluate", out, d), d)
+        every_model_through_every_verb(damaged, d, folder, MODELS)
