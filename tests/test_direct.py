@@ -135,6 +135,7 @@ def zstack():
     return cal, val, zstack_frame(mz)
 
 
+@pytest.mark.slow  # the default's selection on a z stack, against the floor over a volume
 def test_a_z_stack_alone_calibrates_to_the_noise_floor(zstack):
     cal, val, frame = zstack
     assert set(cal.points["sequence"]) == {"Z"}
@@ -218,6 +219,7 @@ def test_the_grid_plate_measures_the_stages_scale_error():
     assert t.loc["plate", "X_vs_floor"] < 1.2 < t.loc["stage", "X_vs_floor"], t
 
 
+@pytest.mark.slow  # four command-line calibrations
 def test_calibrate_takes_model_options_on_the_command_line(tmp_path, volume):
     cal, _ = volume
     d = slmlab.write_set(tmp_path / "cal", cal)

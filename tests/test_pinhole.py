@@ -27,6 +27,7 @@ def test_pinhole_model_file_round_trip_and_reports(small_sets, tmp_path):
     np.testing.assert_allclose(back.reconstruct(w), m.reconstruct(w), atol=1e-9)
 
 
+@pytest.mark.slow  # calibrates every pinhole variant
 def test_variant_is_chosen_on_held_back_positions(small_sets):
     cal, _ = small_sets
     m = slmlab.calibrate(cal, "pinhole", views_from=("X", "Y", "Z"))
@@ -70,6 +71,7 @@ def test_real_chessboard_stereo_rms_is_well_under_a_pixel(dataset_folder):
     assert calibrate_stereo(views, size, "standard", f_guess_px=size[0]).rms_px < 0.6
 
 
+@pytest.mark.slow  # extracts the 14 DICe image pairs
 def test_real_dot_target_stereo_rms_is_well_under_a_pixel(dataset_folder):
     from slmlab.images.extract import extract_stereo_pairs
 
