@@ -24,10 +24,13 @@ from .gripping import grip
 from .images.imageset import extract_set
 from .io import IMAGE_COLUMNS, CalibrationSet, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
+from .models.auto import selection_table
 from .paper.evaluation import evaluate
 from .studies.extraction import extraction_errors, extraction_summary
+from .virtual.designs import DESIGNS, simulate_design
 from .virtual.presets import preset
 from .virtual.render import render_set
+from .virtual.rigs import rig_by_name
 from .virtual.sessions import paper_test, validation_session
 from .virtual.simulate import simulate_set
 
@@ -50,9 +53,13 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="python -m slmlab", description="Stereo light microscope vision modelling workbench.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
 
-    s = sub.add_parser("simulate", help="write a simulated calibration set from the virtual CMO microscope")
+    s = sub.add_parser("simulate", help="write a simulated calibration set (with truth.csv) from a virtual instrument")
     s.add_argument("out_dir", type=Path)
-    s.add_argument("--preset", default="paper", help="virtual microscope preset (paper, leica, ideal)")
+    s.add_argument("--preset", default="paper", help="virtual CMO microscope preset (paper, leica, ideal)")
+    s.add_argument("--rig", default=None, help="a virtual rig instead of the CMO microscope: greenough, stereo-dic, "
+                   "stereo-piv, or KIND:SEED for one drawn at random (e.g. stereo-piv:7); needs --design")
+    s.add_argument("--design", default=None, help="what the rig images: zstack-2 ... zstack-13, stage-sequences, "
+                   "stepped-target, two-level, two-level-2z, two-level-3z, charuco-stack")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG")
     g = s.add_mutually_exclusive_group()
@@ -103,9 +110,14 @@ def _parser() -> argparse.ArgumentParser:
 
 # ------------------------------------------------------------------------------------------------ verbs
 def _simulate(a) -> int:
-    microscope = preset(a.preset)
-    session = validation_session() if a.validation else paper_test(a.test)
-    cal = simulate_set(microscope, session, seed=a.seed)
+    if (a.rig is None) != (a.design is None):
+        raise SlmlabError("--rig and --design go together: a rig (greenough, stereo-dic, stereo-piv) and what it "
+                          f"images ({', '.join(DESIGNS)})")
+    if a.rig is not None:
+        cal = simulate_design(rig_by_name(a.rig), a.design, seed=a.seed)
+    else:
+        session = validation_session() if a.validation else paper_test(a.test)
+        cal = simulate_set(preset(a.preset), session, seed=a.seed)
     write_set(a.out_dir, cal)
     n = cal.points[["wl1", "wr1"]].notna().all(axis=1).sum()
     print(f"wrote {a.out_dir}: {len(cal.points)} rows ({n} seen in both views), "
@@ -204,8 +216,18 @@ def _evaluate(a) -> int:
     cal = read_set(a.cal_dir)
     for note in cal.notes:
         print(f"note: {note}", file=sys.stderr)
-    ev = evaluate(model, cal)
-    print(json.dumps(ev.as_json(), indent=2) if a.json else ev.text())
+    table = selection_table(model)
+    if a.json:
+        print(json.dumps({**evaluate(model, cal).as_json(), "selection": model.calibration.get("selection")}, indent=2))
+        return 0
+    if table is not None:  # the default's choice first: it is in the model file, whatever the set evaluated
+        sel = model.calibration["selection"]
+        print(f"the default's choice ({sel['held_out_by']}; {sel['rule']}):")
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        for label, why in sel.get("skipped", {}).items():
+            print(f"  not a candidate: {label}: {why}")
+        print()
+    print(evaluate(model, cal).text())
     return 0
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from functools import lru_cache
+from functools import lru_cache, partial
 from io import BytesIO
 
 import numpy as np
@@ -36,7 +36,7 @@ from .virtual.presets import preset
 from .virtual.sessions import Session, paper_test, validation_session
 from .virtual.simulate import simulate_set
 
-__all__ = ["microscope_state", "model_state", "step_state", "explore_microscope", "explore_models", "explore_steps",
+__all__ = ["microscope_knobs", "microscope_state", "model_state", "step_state", "explore_microscope", "explore_models", "explore_steps",
            "draw_microscope", "draw_models", "draw_steps"]
 
 
@@ -81,22 +81,39 @@ def _box(controls: dict, compute, draw, fig, title: str):
 
 
 # ------------------------------------------------------------------------------------------ 1: the microscope
-def microscope_state(*, convergence_deg: float = 13.69, perspective_mm: float = 300.0, distortion_scale: float = 1.0,
-                     stage_skew: float = 0.00528, stage_tilt: float = -0.01404, centroid_noise_px: float = 0.02,
-                     positioning_noise_um: float = 0.3, seed: int = 1, session: Session | None = None) -> dict:
-    """Simulate a set with the given knobs and run §3–§4 on it.
+def microscope_knobs(preset_name: str = "paper") -> dict:
+    """The knobs of :func:`microscope_state` as a preset has them (the sliders' starting values)."""
+    m = preset(preset_name)
+    return {"convergence_deg": m.optics.convergence_deg, "perspective_mm": m.optics.perspective_distance_mm,
+            "distortion_scale": 1.0, "stage_skew": m.stage.y_skew, "stage_tilt": m.stage.y_tilt,
+            "centroid_noise_px": m.noise.in_focus_px, "positioning_noise_um": m.stage.positioning_noise_um}
+
+
+def microscope_state(*, preset_name: str = "paper", convergence_deg: float | None = None,
+                     perspective_mm: float | None = None, distortion_scale: float = 1.0, stage_skew: float | None = None,
+                     stage_tilt: float | None = None, centroid_noise_px: float | None = None,
+                     positioning_noise_um: float | None = None, seed: int = 1, session: Session | None = None) -> dict:
+    """Simulate a set with the given knobs (``None``: the preset's value, :func:`microscope_knobs`) and run
+    §3–§4 on it: stereo angle [degree], perspective distance [mm], decentred distortion (× the preset's), the
+    stage's Y skew and tilt [-], centroid noise in focus [px] (it grows with defocus in the preset's proportion),
+    positioning noise [µm].
 
     Returns ``cal``, ``distortion``, ``alignment``, ``disparity`` (the X sequence's disparities) and
     ``table``: Table 1–2 estimates beside what the simulator's optics imply to first order.
     """
-    m = preset("paper")
+    given = {"convergence_deg": convergence_deg, "perspective_mm": perspective_mm, "stage_skew": stage_skew,
+             "stage_tilt": stage_tilt, "centroid_noise_px": centroid_noise_px, "positioning_noise_um": positioning_noise_um}
+    k = {**microscope_knobs(preset_name), **{n: v for n, v in given.items() if v is not None}}
+    m = preset(preset_name)
     o = m.optics
     views = [replace(v, decentring_per_mm=distortion_scale * v.decentring_per_mm,
                      thin_prism_per_mm=distortion_scale * v.thin_prism_per_mm) for v in (o.left, o.right)]
-    m = replace(m, optics=replace(o, convergence_deg=convergence_deg, perspective_distance_mm=perspective_mm,
+    growth = m.noise.at_dof_edge_px / m.noise.in_focus_px if m.noise.in_focus_px else 2.5
+    m = replace(m, optics=replace(o, convergence_deg=k["convergence_deg"], perspective_distance_mm=k["perspective_mm"],
                                   left=views[0], right=views[1]),
-                stage=replace(m.stage, y_skew=stage_skew, y_tilt=stage_tilt, positioning_noise_um=positioning_noise_um),
-                noise=replace(m.noise, in_focus_px=centroid_noise_px, at_dof_edge_px=2.5 * centroid_noise_px))
+                stage=replace(m.stage, y_skew=k["stage_skew"], y_tilt=k["stage_tilt"],
+                              positioning_noise_um=k["positioning_noise_um"]),
+                noise=replace(m.noise, in_focus_px=k["centroid_noise_px"], at_dof_edge_px=growth * k["centroid_noise_px"]))
     cal = simulate_set(m, session or paper_test(5), seed=seed)
     dist = estimate_distortion(cal.sequence("grid"))
     align = estimate_alignment(cal, dist.apply)
@@ -143,29 +160,33 @@ def draw_microscope(state: dict, fig) -> None:
     b.set_title("disparity along X (joint-fit parabola)", fontsize=9)
 
 
-def explore_microscope(**defaults):
-    """The virtual microscope's knobs; live: image-plane tracks, the disparity parabola, Table 1–2 estimates
-    beside the simulator's first-order values (under the figure, in ``box.table``)."""
+def explore_microscope(preset_name: str = "paper", seed: int = 1, **defaults):
+    """The virtual microscope's knobs, starting from the preset's values (or ``defaults``); live: image-plane
+    tracks, the disparity parabola, Table 1–2 estimates beside the simulator's first-order values (under the
+    figure, in ``box.table``)."""
     import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
-    def slider(cls, value, lo, hi, step, desc):
-        return cls(value=defaults.get(desc, value), min=lo, max=hi, step=step, description=desc,
-                   continuous_update=False, style={"description_width": "initial"})
+    start = {**microscope_knobs(preset_name), **defaults}
+
+    def slider(lo, hi, step, desc):
+        return W.FloatSlider(value=start[desc], min=lo, max=hi, step=step, description=desc,
+                             continuous_update=False, style={"description_width": "initial"})
     controls = {
-        "convergence_deg": slider(W.FloatSlider, 13.69, 8.0, 20.0, 0.1, "convergence_deg"),
-        "perspective_mm": slider(W.FloatSlider, 300.0, 50.0, 1000.0, 10.0, "perspective_mm"),
-        "distortion_scale": slider(W.FloatSlider, 1.0, 0.0, 3.0, 0.1, "distortion_scale"),
-        "stage_skew": slider(W.FloatSlider, 0.00528, -0.02, 0.02, 0.0005, "stage_skew"),
-        "stage_tilt": slider(W.FloatSlider, -0.01404, -0.04, 0.04, 0.001, "stage_tilt"),
-        "centroid_noise_px": slider(W.FloatSlider, 0.02, 0.0, 0.2, 0.005, "centroid_noise_px"),
-        "positioning_noise_um": slider(W.FloatSlider, 0.3, 0.0, 3.0, 0.1, "positioning_noise_um"),
+        "convergence_deg": slider(8.0, 20.0, 0.1, "convergence_deg"),
+        "perspective_mm": slider(50.0, 1000.0, 10.0, "perspective_mm"),
+        "distortion_scale": slider(0.0, 3.0, 0.1, "distortion_scale"),
+        "stage_skew": slider(-0.02, 0.02, 0.0005, "stage_skew"),
+        "stage_tilt": slider(-0.04, 0.04, 0.001, "stage_tilt"),
+        "centroid_noise_px": slider(0.0, 0.2, 0.005, "centroid_noise_px"),
+        "positioning_noise_um": slider(0.0, 3.0, 0.1, "positioning_noise_um"),
     }
     table = W.HTML()
 
     def draw(state, fig):
         draw_microscope(state, fig)
         table.value = state["table"].to_html(index=False, float_format=lambda v: f"{v:.4g}")
-    box = _box(controls, microscope_state, draw, _figure(10, 4), "The virtual microscope (§3–§4 on a Test 5 set)")
+    box = _box(controls, partial(microscope_state, preset_name=preset_name, seed=seed), draw, _figure(10, 4),
+               f"The virtual microscope, preset {preset_name} (§3–§4 on a Test 5 set)")
     box.children = (*box.children, table)
     box.table = table
     return box
@@ -173,23 +194,23 @@ def explore_microscope(**defaults):
 
 # ------------------------------------------------------------------------------------------ 2: the models
 @lru_cache(maxsize=4)
-def _model_sets(seed: int):
-    m = preset("paper")
+def _model_sets(seed: int, preset_name: str = "paper"):
+    m = preset(preset_name)
     return simulate_set(m, paper_test(1), seed=seed), simulate_set(m, validation_session(), seed=seed + 100)
 
 
 @lru_cache(maxsize=16)
-def _evaluation(model: str, seed: int):
-    cal, val = _model_sets(seed)
+def _evaluation(model: str, seed: int, preset_name: str = "paper"):
+    cal, val = _model_sets(seed, preset_name)
     name = default_model_name() if model == "default" else model
     options = {"variant": "standard"} if name == "pinhole" else {}
     return evaluate(calibrate(cal, name, **options), val)
 
 
-def model_state(*, model: str = "paper-m2", interval: str = "RA3", seed: int = 1) -> dict:
-    """Evaluation of one model (calibrated on Test 1, validated on a fresh run; cached) at one interval:
-    ``residuals``, ``s`` (S coefficients) and ``interval_mm``."""
-    ev = _evaluation(model, seed)
+def model_state(*, model: str = "paper-m2", interval: str = "RA3", seed: int = 1, preset_name: str = "paper") -> dict:
+    """Evaluation of one model (calibrated on Test 1 of the preset's microscope, validated on a fresh run;
+    cached) at one interval: ``residuals``, ``s`` (S coefficients) and ``interval_mm``."""
+    ev = _evaluation(model, seed, preset_name)
     return {"model": model, "residuals": ev.residuals, "s": ev.s, "interval": interval,
             "interval_mm": RESIDUAL_INTERVALS_MM[interval], "requirement": ev.requirement}
 
@@ -201,6 +222,7 @@ def draw_models(state: dict, fig) -> None:
     res, a = state["residuals"], state["interval_mm"]
     art = getattr(fig, "_slmlab_artists", None)
     if art is None:
+        fig.subplots_adjust(hspace=0.8, wspace=0.3, bottom=0.09)
         gs = fig.add_gridspec(3, 4)
         art = {"panels": {}, "bars": {}}
         for r, seq in enumerate("XYZ"):
@@ -209,15 +231,16 @@ def draw_models(state: dict, fig) -> None:
                 line, = ax.plot([], [], ",", color="tab:blue")
                 hi = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
                 lo = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
-                ax.set_title(f"E{seq}{comp} [µm]", fontsize=8)
-                ax.tick_params(labelsize=6, labelleft=(c == 0))
+                ax.set_title(f"E$_{{{seq},{comp}}}$ [µm]", fontsize=8)
+                ax.tick_params(labelsize=6)  # every panel its own scale, so every panel its own labels
+                ax.set_xlabel(f"Δ{seq} [mm]", fontsize=7, labelpad=1)
                 ax.xaxis.set_major_locator(MaxNLocator(3))
                 ax.yaxis.set_major_locator(MaxNLocator(4))
                 art["panels"][seq + comp] = (ax, line, hi, lo)
             ax = fig.add_subplot(gs[r, 3])
             bars = ax.bar(range(3), [0, 0, 0], color=["tab:red", "tab:green", "tab:blue"])
             ax.axhline(95, color="0.4", ls="--", lw=0.8)
-            ax.set_xticks(range(3), [f"S{seq}{c}" for c in "XYZ"], fontsize=7)
+            ax.set_xticks(range(3), [f"S$_{{{seq},{c}}}$" for c in "XYZ"], fontsize=7)
             ax.set_ylim(0, 105)
             ax.tick_params(labelsize=6)
             art["bars"][seq] = (ax, bars)
@@ -241,9 +264,9 @@ def draw_models(state: dict, fig) -> None:
     fig.suptitle(f"{state['model']}: residual elements and S coefficients", fontsize=9)
 
 
-def explore_models(**defaults):
-    """Model level (0, 1, 2, pinhole, default) and residual interval; live: the nine residual elements and
-    the S coefficients."""
+def explore_models(preset_name: str = "paper", seed: int = 1, **defaults):
+    """Model level (0, 1, 2, pinhole, default) and residual interval, on the preset's microscope; live: the
+    nine residual elements and the S coefficients."""
     import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     controls = {
@@ -252,14 +275,17 @@ def explore_models(**defaults):
         "interval": W.ToggleButtons(options=list(RESIDUAL_INTERVALS_MM), value=defaults.get("interval", "RA3"),
                                     description="interval"),
     }
-    return _box(controls, model_state, draw_models, _figure(9.5, 5.2), "The paper's models on a validation run")
+    return _box(controls, partial(model_state, preset_name=preset_name, seed=seed), draw_models, _figure(9.5, 6.0),
+                f"The paper's models on a validation run (preset {preset_name})")
 
 
 # ------------------------------------------------------------------------------------------ 3: the step study
-def step_state(*, step_mm: float = 0.3, positions: int = 10, repeats: int = 3, seed: int = 1) -> dict:
-    """The twelve parameters over ``repeats`` fresh calibrations at one step and number of positions per
-    axis: ``fits`` (one row per repeat) and ``spread`` (mean, std, relative std per parameter)."""
-    m = preset("paper")
+def step_state(*, step_mm: float = 0.3, positions: int = 10, repeats: int = 3, seed: int = 1,
+               preset_name: str = "paper") -> dict:
+    """The twelve parameters over ``repeats`` fresh calibrations of the preset's microscope at one step [mm]
+    and number of positions per axis: ``fits`` (one row per repeat) and ``spread`` (mean, std, relative std
+    per parameter)."""
+    m = preset(preset_name)
     session = Session(step_mm=step_mm, positions=(positions, positions, positions), grid=True, name="study")
     seeds = np.random.SeedSequence(seed).generate_state(repeats)
     # §3 by the paper's two-step estimate only: the study is about §5's twelve parameters, and the joint
@@ -290,8 +316,9 @@ def draw_steps(state: dict, fig) -> None:
     ax.set_title(f"step {state['step_mm']:.2f} mm, {state['positions']} positions per axis", fontsize=9)
 
 
-def explore_steps(**defaults):
-    """Interval distance and number of positions; live: the twelve parameters' spread."""
+def explore_steps(preset_name: str = "paper", seed: int = 1, **defaults):
+    """Interval distance and number of positions, on the preset's microscope; live: the twelve parameters'
+    spread."""
     import ipywidgets as W  # only where a widget is shown: the *_state and draw_* functions work without it
 
     controls = {
@@ -300,4 +327,5 @@ def explore_steps(**defaults):
         "positions": W.IntSlider(value=defaults.get("positions", 10), min=4, max=30, description="positions",
                                  continuous_update=False),
     }
-    return _box(controls, step_state, draw_steps, _figure(7, 4), "The step study (Tables 3–4)")
+    return _box(controls, partial(step_state, preset_name=preset_name, seed=seed), draw_steps, _figure(7, 4),
+                f"The step study (Tables 3–4, preset {preset_name})")

@@ -91,7 +91,7 @@ class CalibrationSet:
     @property
     def sequences(self) -> list[str]:
         """Sequence labels in order of first appearance."""
-        return list(dict.fromkeys(self.points["sequence"]))
+        return [str(s) for s in pd.unique(self.points["sequence"])]
 
     def sequence(self, name: str) -> pd.DataFrame:
         """The rows of one sequence (an empty frame if absent)."""
@@ -182,7 +182,7 @@ def json_text(obj) -> str:
 def read_csv_text(path: Path, what: str) -> pd.DataFrame:
     """Read a CSV file as strings, turning every way it can be unreadable into a SlmlabError."""
     if not path.exists():
-        raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see DATA_FORMAT.md)", path)
+        raise SlmlabError(f"{what} not found; a calibration set needs points.csv and meta.json (see README, 'The format')", path)
     if path.is_dir():
         raise SlmlabError(f"is a folder, but {what} must be a CSV file", path)
     raw = path.read_bytes()
@@ -300,8 +300,11 @@ def read_points(path: str | os.PathLike) -> pd.DataFrame:
 
 # ---------------------------------------------------------------------------------------- sets
 def read_meta(path: Path) -> dict:
+    """``meta.json``, validated for every verb: what a set of points needs (format, image size, plates and their
+    pitch, rows and cols where given). What only finding the plates in images needs (``dot_diameter_mm``, a
+    ChArUco board's details) is checked by extraction where it is missing, and here only where it is given."""
     if not path.exists():
-        raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see DATA_FORMAT.md)", path)
+        raise SlmlabError("meta.json not found; a calibration set needs it beside points.csv (see README, 'The format')", path)
     if path.is_dir():
         raise SlmlabError("is a folder, but meta.json must be a JSON file", path)
     try:
@@ -326,8 +329,10 @@ def read_meta(path: Path) -> dict:
     for name, plate in plates.items():
         if not isinstance(plate, dict):
             raise SlmlabError(f"plates.{name} must be an object with rows, cols, pitch_mm, dot_diameter_mm", path)
+        # dot_diameter_mm and a ChArUco board's details are needed only to find the plate in images: checked by
+        # extraction (slmlab.images.imageset.check_extractable), not here, so that a set of points reads without them
         for key, integer, required in (("rows", True, False), ("cols", True, False), ("pitch_mm", False, True),
-                                       ("dot_diameter_mm", False, plate.get("pattern", "dots") == "dots")):
+                                       ("dot_diameter_mm", False, False)):
             v = plate.get(key)
             if v is None and not required:
                 continue
@@ -354,9 +359,9 @@ def read_meta(path: Path) -> dict:
         if origin is not None and not (isinstance(origin, list) and len(origin) == 2
                                        and all(_positive(v, True) for v in origin)):
             raise SlmlabError(f"plates.{name}.marker_origin must be [row, col] of the corner donut", path)
-        if pattern == "charuco" and not isinstance(plate.get("board"), dict):
-            raise SlmlabError(f"plates.{name} is a ChArUco board: give board = {{squares: [x, y], marker_mm, "
-                              "dictionary, legacy}}", path)
+        if plate.get("board") is not None and not isinstance(plate["board"], dict):
+            raise SlmlabError(f"plates.{name}.board must be an object {{squares: [x, y], marker_mm, dictionary, "
+                              "legacy}} (or left out where points.csv is given)", path)
     return meta
 
 

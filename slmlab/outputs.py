@@ -17,7 +17,7 @@ import pandas as pd
 
 from .io import atomic_write_bytes, atomic_write_text
 
-__all__ = ["REPO_ROOT", "SHARED_DIR", "figures_dir", "notebook_size", "savefig", "savetable", "markdown_table",
+__all__ = ["REPO_ROOT", "SHARED_DIR", "figures_dir", "notebook_size", "savefig", "savetable", "markdown_caption", "markdown_table",
            "table_digits", "TABLE_DIGITS"]
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -101,13 +101,23 @@ def table_digits(df: pd.DataFrame, digits: int = TABLE_DIGITS) -> pd.DataFrame:
     return out
 
 
-def savetable(df: pd.DataFrame, name: str) -> Path | None:
+def savetable(df: pd.DataFrame, name: str, *, caption: str | None = None) -> Path | None:
     """Write a table as ``{name}.csv`` and ``{name}.md`` into :func:`figures_dir` (if set), its numbers to the
-    digits they carry (:func:`table_digits`), so that ``make reproduce`` writes the same bytes on any machine."""
+    digits they carry (:func:`table_digits`), so that ``make reproduce`` writes the same bytes on any machine.
+
+    ``caption`` (one line: what the table is and which notebook wrote it) is the first line of the ``.md``,
+    above the table; the ``.csv`` holds the table only."""
     out = figures_dir()
     if out is None:
         return None
     df = table_digits(df)
     atomic_write_text(out / f"{name}.csv", df.to_csv(index=False, float_format="%.6g", lineterminator="\n"))
-    atomic_write_text(out / f"{name}.md", markdown_table(df))
+    atomic_write_text(out / f"{name}.md", markdown_caption(caption) + markdown_table(df))
     return out / f"{name}.csv"
+
+
+def markdown_caption(caption: str | None) -> str:
+    """The caption line of a table's ``.md``: ``*caption*`` (its whitespace, line breaks included, collapsed to
+    single spaces: one line) and a blank line; nothing without a caption."""
+    text = " ".join(str(caption or "").split())
+    return f"*{text}*\n\n" if text else ""

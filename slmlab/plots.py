@@ -7,11 +7,14 @@ and returns the Axes. Names follow the paper's figures.
 from __future__ import annotations
 
 import cv2
+import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
+import pandas as pd
 from matplotlib.patches import Circle, Polygon, Rectangle
 
 from .io import CalibrationSet
+from .outputs import table_digits
 from .virtual.microscope import Microscope
 
 __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_stage_sequences",
@@ -20,8 +23,9 @@ __all__ = ["new_figure", "plot_cmo_geometry", "plot_stage_axes_top_view", "plot_
            "plot_dz_vs_dd", "plot_s_bars", "plot_residual_panels", "plot_scene_side", "plot_located",
            "plot_trajectory", "plot_volumetric_errors", "plot_cross_validation_diff", "plot_accuracy_vs_positions",
            "plot_leave_one_plane_out", "plot_floor_ratios", "plot_pick_differences", "plot_level_map",
-           "plot_model_comparison", "plot_recovered_share"]
+           "plot_model_comparison", "plot_recovered_share", "plot_numbering", "plot_point_uncertainty"]
 
+MPL_VERSION = tuple(int(p) for p in matplotlib.__version__.split(".")[:2])
 SEQUENCE_COLOURS = {"X": "tab:red", "Y": "tab:green", "Z": "tab:blue", "grid": "0.5", "V": "tab:purple"}
 VIEW_COLOURS = {"l": "tab:orange", "r": "tab:cyan"}
 
@@ -36,6 +40,17 @@ def _ax(ax):
     if ax is None:
         _, ax = new_figure()
     return ax
+
+
+def _as_drawn(values) -> np.ndarray:
+    """Numbers as a figure draws them: to the digits a table carries (:func:`slmlab.outputs.table_digits`).
+
+    Another machine computes the same quantities to within their last bits (its CPU's ``exp``, its BLAS
+    kernels); drawn at full precision, a point can then move by a fraction of a pixel and change the
+    anti-aliasing of a few pixels, so the PNG is no longer byte-stable. Four significant digits are far finer
+    than a pixel of any figure here and far coarser than those last bits."""
+    v = np.asarray(values, dtype=float)
+    return table_digits(pd.DataFrame({"v": v.ravel()}))["v"].to_numpy().reshape(v.shape)
 
 
 def plot_cmo_geometry(microscope: Microscope, ax=None, *, exaggerate_z: float = 1.0, show_dof: bool = True):
@@ -131,33 +146,61 @@ def plot_stage_sequences(cal: CalibrationSet, ax=None, *, sequences=("X", "Y", "
     return ax
 
 
-def plot_image_tracks(cal: CalibrationSet, axes=None, *, sequences=("X", "Y", "Z"), every: int = 1):
-    """Image-plane tracks of the dots along the axis sequences, left and right view side by side.
+def plot_image_tracks(cal: CalibrationSet, axes=None, *, sequences=("X", "Y", "Z"), every: int = 1,
+                      depth_sequence: str = "Z"):
+    """Image-plane tracks of the dots along the axis sequences (paper Fig 9b, Fig 11), left and right view.
 
-    Each dot's path over the positions of a sequence is a line; position 1 is marked. ``every`` thins the
-    dots drawn (1: all 49).
-    """
+    Top row: each dot's path over the positions of the lateral sequences (``sequences`` but
+    ``depth_sequence``), the whole image; position 1 marked. Bottom row: the ``depth_sequence`` alone, zoomed
+    on the plate, each path an arrow from position 1 to the last position: the two views' dots move in
+    opposite directions along ``w1`` as depth changes (the disparity), which the lateral tracks would hide at
+    full-image scale. ``every`` thins the dots drawn (1: all 49)."""
     if axes is None:
-        _, axes = new_figure(1, 2, width_in=9.0, height_in=4.4, sharex=True, sharey=True)
+        _, axes = new_figure(2, 2, width_in=9.0, height_in=8.6, height_ratios=[1.35, 1])
     width, height = cal.image_size_px
-    for ax, (side, c1, c2) in zip(axes, (("l", "wl1", "wl2"), ("r", "wr1", "wr2"))):
+    depth = cal.sequence(depth_sequence) if depth_sequence in sequences else cal.sequence(depth_sequence).iloc[:0]
+    for c, (side, c1, c2) in enumerate((("l", "wl1", "wl2"), ("r", "wr1", "wr2"))):
+        name = "left" if side == "l" else "right"
+        top, bottom = axes[0, c], axes[1, c]
         for s in sequences:
-            df = cal.sequence(s)
-            if df.empty:
+            if s == depth_sequence:
                 continue
-            keys = df[["row", "col"]].drop_duplicates().to_numpy()[::every]
-            for n, (i, j) in enumerate(keys):
-                g = df[(df["row"] == i) & (df["col"] == j)].sort_values("position")
-                ax.plot(g[c1], g[c2], "-", lw=0.6, color=SEQUENCE_COLOURS[s], label=f"{s} sequence" if n == 0 else None)
-                ax.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=2, color="k")
-        ax.set_xlim(0, width)
-        ax.set_ylim(height, 0)
-        ax.set_aspect("equal")
-        ax.set_xlabel("w1 [px]")
-        ax.set_title(f"{'left' if side == 'l' else 'right'} image", fontsize=10)
-    axes[0].set_ylabel("w2 [px]")
-    axes[0].legend(fontsize=7, loc="lower left")
+            for n, (_, g) in enumerate(_tracks(cal.sequence(s), every)):
+                top.plot(g[c1], g[c2], "-", lw=0.6, color=SEQUENCE_COLOURS[s], label=f"{s} sequence" if n == 0 else None)
+                top.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=2, color="k")
+        top.set_xlim(0, width)
+        top.set_ylim(height, 0)
+        top.set_aspect("equal")
+        top.set_xlabel("w1 [px]")
+        top.set_ylabel("w2 [px]")
+        top.set_title(f"({'ab'[c]}) {name} image: lateral sequences", fontsize=10)
+        if top.get_legend_handles_labels()[0]:
+            top.legend(fontsize=7, loc="lower left")
+        for n, (_, g) in enumerate(_tracks(depth, every)):
+            bottom.annotate("", xy=(g[c1].iloc[-1], g[c2].iloc[-1]), xytext=(g[c1].iloc[0], g[c2].iloc[0]),
+                            arrowprops=dict(arrowstyle="->", color=SEQUENCE_COLOURS.get(depth_sequence, "k"), lw=0.9))
+            bottom.plot(g[c1].iloc[:1], g[c2].iloc[:1], ".", ms=3, color="k")
+        bottom.set_title(f"({'cd'[c]}) {name} image, {depth_sequence} sequence: first (dot) → last position", fontsize=10)
+        bottom.set_xlabel("w1 [px]")
+        bottom.set_ylabel("w2 [px]")
+    if len(depth):
+        w1 = depth[["wl1", "wr1"]].to_numpy(float)
+        w2 = depth[["wl2", "wr2"]].to_numpy(float)
+        pad = 0.06 * (np.nanmax(w1) - np.nanmin(w1))
+        for ax in axes[1]:
+            ax.set_xlim(np.nanmin(w1) - pad, np.nanmax(w1) + pad)
+            ax.set_ylim(np.nanmax(w2) + pad, np.nanmin(w2) - pad)
+            ax.set_aspect("equal")
     return axes
+
+
+def _tracks(df, every: int):
+    """Each dot's rows of a sequence, in position order: ``(row, col), rows`` for every ``every``-th dot."""
+    if df.empty:
+        return []
+    keys = df[["row", "col"]].drop_duplicates().to_numpy()[::every]
+    groups = dict(tuple(df.sort_values("position").groupby(["row", "col"])))
+    return [((i, j), groups[(i, j)]) for i, j in keys]
 
 
 def plot_depth_response(responses: dict, axes=None):
@@ -195,13 +238,13 @@ def plot_error_vs_defocus(by_depth, ax=None, *, depth_of_field_mm: float = 1.13,
     (``by_depth`` from :func:`slmlab.images.extract.error_by_defocus`); the targets and the depth of field drawn."""
     ax = _ax(ax)
     for method, d in by_depth.groupby("method"):
-        ax.plot(d["z_bin_mm"], d["rms_px"], "o-", ms=3, label=method)
+        ax.plot(_as_drawn(d["z_bin_mm"]), _as_drawn(d["rms_px"]), "o-", ms=3, label=method)
     ax.axvspan(-depth_of_field_mm, depth_of_field_mm, color="0.92", zorder=0, label="depth of field")
     ax.axhline(targets[0], color="tab:green", ls="--", lw=0.8, label=f"target in focus ({targets[0]} px)")
     ax.axhline(targets[1], color="tab:red", ls="--", lw=0.8, label=f"target over the depth of field ({targets[1]} px)")
     ax.set_xlabel("z above the focal plane [mm]")
     ax.set_ylabel("centre RMS error per coordinate [px]")
-    ax.set_ylim(0, max(0.06, float(by_depth["rms_px"].max()) * 1.1))
+    ax.set_ylim(0, max(0.06, float(_as_drawn(by_depth["rms_px"]).max()) * 1.1))
     ax.legend(fontsize=7)
     ax.set_title("Dot centre error against defocus (rendered images vs truth)", fontsize=10)
     return ax
@@ -250,7 +293,7 @@ def plot_display(df, ax=None, *, by: str = "row", title: str = "", xlabel: str =
     other = "col" if by == "row" else "row"
     for _, g in df.groupby(by):
         g = g.sort_values(other)
-        ax.plot(g["x"], g["y"], ".-", ms=1.5, lw=0.5, color="tab:red" if by == "row" else "tab:blue")
+        ax.plot(_as_drawn(g["x"]), _as_drawn(g["y"]), ".-", ms=1.5, lw=0.5, color="tab:red" if by == "row" else "tab:blue")
     ax.set_title(title, fontsize=9)
     ax.set_xlabel(xlabel, fontsize=8)
     ax.set_ylabel(ylabel, fontsize=8)
@@ -267,9 +310,10 @@ def plot_display_quad(frames: dict, axes=None, *, suptitle: str = ""):
     for r, kind in enumerate(("rows", "cols")):
         for c, side in enumerate("lr"):
             name = f"({next(letters)}) {kind[:-1] if kind == 'rows' else 'column'}s of grid points, {'left' if side == 'l' else 'right'} image"
-            plot_display(frames[(kind, side)], axes[r, c], by="row" if kind == "rows" else "col", title=name,
-                         xlabel="w1 [px]" if kind == "rows" else "w2 [px]",
-                         ylabel="w2 − w2[i,1] + i·s [px]" if kind == "rows" else "w1 − chord + j·s [px]")
+            frame = frames[(kind, side)]
+            default = "w2 − w2[i,1] + i·s [px]" if kind == "rows" else "w1 − chord + j·s [px]"
+            plot_display(frame, axes[r, c], by="row" if kind == "rows" else "col", title=name,
+                         xlabel="w1 [px]" if kind == "rows" else "w2 [px]", ylabel=frame.attrs.get("y_label", default))
     if suptitle:
         axes[0, 0].figure.suptitle(suptitle, fontsize=10)
     return axes
@@ -288,26 +332,31 @@ def plot_virtual_lines(df, ax=None):
     return ax
 
 
-def plot_disparity(table, axes=None, *, column: str = "D0", fits: dict | None = None, title: str = ""):
+def plot_disparity(table, axes=None, *, column: str = "D0", fits: dict | None = None, title: str = "",
+                   ylabel: str = "disparity D = w1_r − w1_l [px]"):
     """Figs 7–8: disparity against ``w1`` along the X sequence (a) and against ``w2`` along the Y sequence (b).
 
+    ``column`` is the table's disparity to draw (``D0`` as measured, or a corrected one), labelled ``ylabel``;
     ``fits`` maps a label to a function ``w1 → D`` drawn over panel (a) (the fitted parabolas)."""
     if axes is None:
         _, axes = new_figure(1, 2, width_in=10.0, height_in=3.8)
     x = table[table["sequence"] == "X"]
     y = table[table["sequence"] == "Y"]
-    axes[0].scatter(x["w1_l"], x[column], s=1.5, c=x["row"] * 10 + x["col"], cmap="viridis", rasterized=True)
+    axes[0].scatter(_as_drawn(x["w1_l"]), _as_drawn(x[column]), s=1.5, c=x["row"] * 10 + x["col"], cmap="viridis",
+                    rasterized=True)
     for label, fn in (fits or {}).items():
-        w = np.linspace(x["w1_l"].min(), x["w1_l"].max(), 200)
-        axes[0].plot(w, fn(w), lw=1.2, label=label)
+        w = np.linspace(*_as_drawn([x["w1_l"].min(), x["w1_l"].max()]), 200)
+        axes[0].plot(w, _as_drawn(fn(w)), lw=1.2, label=label)
     if fits:
         axes[0].legend(fontsize=7)
     axes[0].set_xlabel("w1 (left) [px]")
-    axes[0].set_ylabel(f"{column} [px]")
+    axes[0].set_ylabel(ylabel)
     axes[0].set_title("(a) X sequence: disparity against w1", fontsize=9)
     if len(y):
-        axes[1].scatter(y["w2_l"], y[column], s=1.5, c=y["row"] * 10 + y["col"], cmap="viridis", rasterized=True)
+        axes[1].scatter(_as_drawn(y["w2_l"]), _as_drawn(y[column]), s=1.5, c=y["row"] * 10 + y["col"], cmap="viridis",
+                        rasterized=True)
     axes[1].set_xlabel("w2 (left) [px]")
+    axes[1].set_ylabel(ylabel)
     axes[1].set_title("(b) Y sequence: disparity against w2", fontsize=9)
     if title:
         axes[0].figure.suptitle(title, fontsize=10)
@@ -329,9 +378,12 @@ def plot_dz_vs_dd(samples, ez_mm_per_px: float, ax=None):
 
 def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str = ""):
     """Figs 12 and 16: S coefficients [%] over RA1–RA5 as bars, one panel per sequence (X, Y, Z), the
-    paper's reported values marked (``reference``: ``{element: {interval: percent}}``)."""
+    paper's reported values marked (``reference``: ``{element: {interval: percent}}``).
+
+    The bars' colours are the residual's component (X, Y, Z), the same in every panel; one legend for the
+    figure, below the panels, so that no bar is hidden behind it."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=12.0, height_in=3.6, sharey=True)
+        _, axes = new_figure(1, 3, width_in=12.0, height_in=3.9, sharey=True)
     intervals = list(s_table.columns)
     xs = np.arange(len(intervals))
     width = 0.26
@@ -341,7 +393,7 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
             el = seq + comp
             if el not in s_table.index:
                 continue
-            ax.bar(xs + (k - 1) * width, s_table.loc[el].to_numpy(), width, color=colours[comp], label=f"S$_{{{seq}{comp}}}$")
+            ax.bar(xs + (k - 1) * width, _as_drawn(s_table.loc[el].to_numpy()), width, color=colours[comp])
             for ra, val in ((reference or {}).get(el) or {}).items():
                 if ra in intervals:
                     i = intervals.index(ra)
@@ -349,9 +401,14 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
         ax.axhline(95, color="0.4", ls="--", lw=0.8)
         ax.set_xticks(xs, intervals)
         ax.set_ylim(0, 105)
-        ax.set_title(f"({'abc'['XYZ'.index(seq)]}) {seq} sequence", fontsize=9)
-        ax.legend(fontsize=7, loc="lower right")
-    axes[0].set_ylabel("S [%]  (black: paper)")
+        ax.set_title(f"({'abc'['XYZ'.index(seq)]}) {seq} sequence: S$_{{{seq}X}}$, S$_{{{seq}Y}}$, S$_{{{seq}Z}}$",
+                     fontsize=9)
+    axes[0].set_ylabel("S [%]")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colours[c]) for c in "XYZ"]
+    handles += [plt.Line2D([], [], color="k", marker="_", ms=12, mew=2, ls=""),
+                plt.Line2D([], [], color="0.4", ls="--", lw=0.8)]
+    labels = [f"{c} component of the residual" for c in "XYZ"] + ["the paper's reported value", "95 %"]
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=5, fontsize=8, frameon=False)
     if title:
         axes[0].figure.suptitle(title, fontsize=10)
     return axes
@@ -444,15 +501,20 @@ def plot_trajectory(trajectory_mm, target_mm, ax=None):
 
 
 def plot_volumetric_errors(errors: dict, ax=None):
-    """Displacement error magnitude [µm] against the depth of the validation positions, one series per
-    model (``errors``: name → DataFrame with ``Z_mm`` and ``error_um``), log scale."""
-    ax = _ax(ax)
-    for name, d in errors.items():
-        ax.plot(d["Z_mm"], d["error_um"], ".", ms=2, label=name, alpha=0.6)
-    ax.set_yscale("log")
-    ax.set_xlabel("stage Z of the validation position [mm]")
-    ax.set_ylabel("|displacement error| [µm]")
-    ax.legend(fontsize=7, markerscale=4)
+    """Displacement error magnitude [µm] over the validation positions, one box per model (``errors``: name →
+    DataFrame with ``error_um``, as :func:`slmlab.studies.workspace.volumetric_errors` returns; first at the
+    top): the box holds the middle half, the whiskers 5–95 %, the line the median; log scale."""
+    if ax is None:
+        _, ax = new_figure(width_in=8.0, height_in=0.45 * len(errors) + 1.2)
+    names = list(errors)
+    horizontal = {"orientation": "horizontal"} if MPL_VERSION >= (3, 10) else {"vert": False}  # renamed in 3.10
+    ax.boxplot([errors[n]["error_um"].to_numpy() for n in names], **horizontal, whis=(5, 95), widths=0.6,
+               flierprops={"marker": ".", "ms": 2, "alpha": 0.4}, medianprops={"color": "k"})
+    ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("|displacement error| [µm]   (box: the middle half; whiskers: 5–95 %)")
+    ax.grid(axis="x", which="both", color="0.9", lw=0.5)
     ax.set_title("Errors over the whole workspace (random stage positions)", fontsize=10)
     return ax
 
@@ -493,8 +555,8 @@ def plot_accuracy_vs_positions(table, axes=None):
     for ax, c in zip(axes, "XYZ"):
         for (case, model), d in table.groupby(["case", "model"], sort=False):
             d = d.sort_values("positions")
-            ax.plot(d["positions"], d[f"{c}_vs_floor"], "o-" if model == "direct" else "--", ms=3,
-                    marker="o" if model == "direct" else ("s" if "paper" in case else "x"), label=f"{model}, {case}")
+            ax.plot(d["positions"], d[f"{c}_vs_floor"], ls="-" if model == "direct" else "--", ms=3,
+                    marker="o" if model == "direct" else ("x" if "perfect" in case else "s"), label=f"{model}, {case}")
         ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
@@ -512,17 +574,18 @@ def plot_leave_one_plane_out(table, axes=None):
     """Real Z stack, leave one plane out: RMS error [µm] of the left-out plane per coordinate, per variant
     (solid), and the default model's mean predicted 1σ (dashed)."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.2, sharex=True)
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.7, sharex=True)
     for ax, c in zip(axes, "XYZ"):
         for label, d in table.groupby("model", sort=False):
-            ax.plot(d["Z_mm"], 1e3 * d[f"E{c}_mm"], "o-", ms=3, label=f"{label}: RMS error")
+            ax.plot(d["Z_mm"], d[f"E{c}_um"], "o-", ms=3, label=f"{label}: RMS error")
         first = table[table["model"] == table["model"].iloc[0]]
-        ax.plot(first["Z_mm"], 1e3 * first[f"s{c}_mm"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
+        ax.plot(first["Z_mm"], first[f"s{c}_um"], "k--", lw=1, label=f"{first['model'].iloc[0]}: predicted 1σ")
         ax.set_xlabel("left-out plane Z [mm]")
         ax.set_title(c, fontsize=10)
         ax.set_ylim(bottom=0)
-    axes[0].set_ylabel("µm")
-    axes[0].legend(fontsize=7)
+    axes[0].set_ylabel("left-out plane [µm]")
+    handles, labels = axes[0].get_legend_handles_labels()   # one legend under the panels, over no line
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 3), fontsize=7)
     return axes
 
 
@@ -588,8 +651,10 @@ def plot_level_map(image, table, ax=None, *, title: str = "", reduce: int = 2):
 
 def plot_model_comparison(table, ax=None, *, reference: str | None = None, title: str = ""):
     """RMS error [µm] per coordinate of each model (a row of ``table``: ``model, X_um, Y_um, Z_um``), one group
-    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group."""
-    ax = _ax(ax)
+    of bars per coordinate, on a log scale; the ``reference`` model's values dotted across each group; the
+    legend beside the axes, where it hides no bar."""
+    if ax is None:
+        _, ax = new_figure(width_in=9.5, height_in=4.0)
     n = len(table)
     width = 0.8 / n
     for i, (_, row) in enumerate(table.iterrows()):
@@ -602,14 +667,14 @@ def plot_model_comparison(table, ax=None, *, reference: str | None = None, title
     ax.set_xticks(range(3), ["X", "Y", "Z"])
     ax.set_ylabel("RMS error after one offset [µm]")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return ax
 
 
 def plot_recovered_share(table, ax=None):
     """The share of the disparity's curvature the single pass recovers against the ratio of the plate's width
-    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression formula of
-    METHOD.md §2)."""
+    to a dot's path length (points: measured on simulated sets; crosses: the pooled-regression attenuation of
+    :func:`slmlab.paper.alignment.recovered_share`)."""
     ax = _ax(ax)
     t = table.sort_values("plate_width_over_path_length")
     ax.plot(t["plate_width_over_path_length"], t["recovered_share"], "o", label="single pass / joint fit (measured)")
@@ -620,4 +685,68 @@ def plot_recovered_share(table, ax=None):
     ax.set_ylabel("share of the curvature recovered")
     ax.set_ylim(0, 1.05)
     ax.legend(fontsize=7)
+    return ax
+
+
+# ------------------------------------------------------------------------------------------ your microscope (notebook 12)
+def plot_numbering(image, table, ax=None, *, title: str = "", every: int = 1):
+    """An image, zoomed on the extracted dots, with the dots marked and labelled ``row,col`` (every ``every``-th
+    row and column), the first row and column drawn as arrows from dot ``[1, 1]``: the numbering to check by
+    eye. ``table`` has ``row, col, w1, w2`` [px]."""
+    ax = _ax(ax)
+    lo, hi = np.percentile(image, [1, 99.5])
+    ax.imshow(image, cmap="gray", vmin=lo, vmax=hi)
+    ax.plot(table["w1"], table["w2"], "o", ms=5, mfc="none", mec="tab:orange", mew=1.0)
+    shown = table[((table["row"] - 1) % every == 0) & ((table["col"] - 1) % every == 0)]
+    for _, r in shown.iterrows():
+        ax.annotate(f"{int(r['row'])},{int(r['col'])}", (r["w1"], r["w2"]), xytext=(9, 9), textcoords="offset points",
+                    fontsize=7, color="navy", bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})
+    first = table.set_index(["row", "col"])
+    if (1, 1) in first.index:
+        o = first.loc[(1, 1), ["w1", "w2"]].to_numpy(float)
+        for key, colour, label in (((1, 2), "tab:red", "along a row (col + 1)"), ((2, 1), "tab:cyan", "along a column (row + 1)")):
+            if key in first.index:
+                d = first.loc[key, ["w1", "w2"]].to_numpy(float) - o
+                ax.annotate("", o + 1.8 * d, o, arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
+                ax.plot([], [], "-", color=colour, label=label)
+        ax.plot(*o, "o", ms=11, mfc="none", mec="tab:red", mew=1.5, label="dot [1, 1]")
+        ax.legend(fontsize=7, loc="lower right")
+    span = max(np.ptp(table["w1"]), np.ptp(table["w2"]), 1.0)
+    ax.set_xlim(table["w1"].min() - 0.12 * span, table["w1"].max() + 0.12 * span)  # the plate, not the whole image
+    ax.set_ylim(table["w2"].max() + 0.12 * span, table["w2"].min() - 0.12 * span)
+    ax.set_xlabel("w1 [px]")
+    ax.set_ylabel("w2 [px]")
+    ax.set_title(title, fontsize=10)
+    return ax
+
+
+def plot_point_uncertainty(points, ax=None):
+    """Per-point 1σ [µm] of reconstructed points (``reconstruct``'s ``sX_mm, sY_mm, sZ_mm``) against their
+    reconstructed depth ``Z_mm`` [mm], one colour per coordinate."""
+    ax = _ax(ax)
+    for c, colour in zip("XYZ", ("tab:red", "tab:green", "tab:blue")):
+        ax.plot(points["Z_mm"], 1e3 * points[f"s{c}_mm"], ".", ms=2, color=colour, label=f"σ{c}")
+    ax.set_yscale("log")
+    ax.set_xlabel("reconstructed Z [mm]")
+    ax.set_ylabel("predicted 1σ per point [µm]")
+    ax.legend(fontsize=8, markerscale=4)
+    return ax
+
+
+def plot_ratio_grid(ratios, key: str, ax=None, *, limit: float = 1.0, title: str = "", vmax: float = 3.0):
+    """One rig × design × coordinate grid of a ratio (``ratios``: :func:`slmlab.studies.zoo.ratio_table`;
+    ``key``: ``"vs_floor"``, ``"vs_polynomial"`` or ``"vs_candidates"``), each cell coloured on a log scale
+    from 1/``vmax`` to ``vmax`` and labelled with its value; cells above ``limit`` are outlined."""
+    ax = _ax(ax)
+    labels = [f"{r} · {d}" for r, d in zip(ratios["rig"], ratios["design"])]
+    values = ratios[[f"{c}_{key}" for c in "XYZ"]].to_numpy(float)
+    ax.imshow(np.log(np.clip(values, 1 / vmax, vmax)), cmap="RdYlGn_r", vmin=-np.log(vmax), vmax=np.log(vmax),
+              aspect="auto")
+    for (i, j), v in np.ndenumerate(values):
+        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6)
+        if v > limit * (1 + 1e-9):
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=1.2, edgecolor="k"))
+    ax.set_xticks(range(3), ["X", "Y", "Z"])
+    ax.set_yticks(range(len(labels)), labels, fontsize=6)
+    ax.set_title(title, fontsize=9)
     return ax

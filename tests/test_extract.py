@@ -1,4 +1,4 @@
-"""Rendering and dot extraction: accuracy against truth, robustness, real images (METHOD.md §7)."""
+"""Rendering and dot extraction: accuracy against truth, robustness, real images."""
 
 import subprocess
 import sys

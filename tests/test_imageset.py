@@ -1,5 +1,5 @@
 """Extraction of images as a camera writes them: stage.csv, bit depth, polarity, markers, two-level plates,
-plates larger than the field, OpenCV's boards, and every way a user's images can be wrong (DATA_FORMAT.md)."""
+plates larger than the field, OpenCV's boards, and every way a user's images can be wrong (README, "The format")."""
 
 import json
 import shutil
@@ -100,6 +100,12 @@ BAD_INPUT = {
     "image size unlike meta.json": (
         lambda d: (d / "meta.json").write_text((d / "meta.json").read_text().replace("[2048, 2048]", "[1024, 1024]")),
         ["image_size_px"]),
+    "a dot plate without dot_diameter_mm": (
+        lambda d: (d / "meta.json").write_text((d / "meta.json").read_text().replace(', "dot_diameter_mm": 0.15', "")),
+        ["meta.json", "plates.moving.dot_diameter_mm is missing", "extracting dots"]),
+    "a ChArUco plate without its board": (
+        lambda d: (d / "meta.json").write_text((d / "meta.json").read_text().replace('"pitch_mm"', '"pattern": "charuco", "pitch_mm"')),
+        ["meta.json", "plates.moving.board", "squares"]),
     "a stage.csv row without images": (
         lambda d: (d / "stage.csv").write_text((d / "stage.csv").read_text().replace("cam/3_l.png,cam/3_r.png", ",")),
         ["stage.csv", "row 4"]),

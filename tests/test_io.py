@@ -175,3 +175,39 @@ def test_tables_keep_the_digits_their_numbers_carry(tmp_path, monkeypatch):
     savetable(df.assign(ours=df["ours"] * (1 + 4e-16)), "t")
     assert ((tmp_path / "t.md").read_bytes(), (tmp_path / "t.csv").read_bytes()) == first
     assert b"e-12" not in first[0]
+
+
+def test_a_table_caption_is_the_first_line_of_its_markdown_only(tmp_path, monkeypatch):
+    """Issue 24: every table in figures/ says what it is and which notebook wrote it, as the first line of its
+    .md; the .csv stays the table alone (the same bytes as without a caption)."""
+    import pandas as pd
+
+    from slmlab.outputs import savetable
+
+    df = pd.DataFrame({"parameter": ["a", "b"], "ours": [1.5, -2.25]})
+    monkeypatch.setenv("SLMLAB_FIGURES", str(tmp_path))
+    savetable(df, "plain")
+    savetable(df, "captioned", caption="Two numbers,\n   for a test (notebook 00).")
+    md = (tmp_path / "captioned.md").read_text().splitlines()
+    assert md[0] == "*Two numbers, for a test (notebook 00).*" and md[1] == ""
+    assert md[2:] == (tmp_path / "plain.md").read_text().splitlines()
+    assert (tmp_path / "captioned.csv").read_bytes() == (tmp_path / "plain.csv").read_bytes()
+
+
+def test_a_set_of_points_reads_without_what_only_extraction_needs(set_dir):
+    """dot_diameter_mm and a ChArUco board's details are checked by extraction, not by the reader; what is
+    given is still checked."""
+    meta = set_dir / "meta.json"
+    good = json.loads(meta.read_text())
+    plates = {k: {kk: vv for kk, vv in v.items() if kk != "dot_diameter_mm"} for k, v in good["plates"].items()}
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    assert "dot_diameter_mm" not in slmlab.read_set(set_dir).plate("X")
+    plates["moving"]["pattern"] = "charuco"
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    assert slmlab.read_set(set_dir).plate("X")["pattern"] == "charuco"
+    plates["moving"]["board"] = "DICT_6X6_250"
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    expect_error(set_dir, "plates.moving.board must be an object")
+    plates["moving"]["board"], plates["moving"]["dot_diameter_mm"] = {"squares": [8, 8]}, -1
+    meta.write_text(json.dumps({**good, "plates": plates}))
+    expect_error(set_dir, "plates.moving.dot_diameter_mm must be a positive number")

@@ -1,4 +1,4 @@
-"""Physics of the virtual CMO microscope, checked against the geometry it claims (METHOD.md §7)."""
+"""Physics of the virtual CMO microscope, checked against the geometry it claims."""
 
 from dataclasses import replace
 

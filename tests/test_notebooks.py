@@ -30,5 +30,6 @@ def test_the_quick_notebooks_are_there():
 def test_notebook_runs(path, tmp_path):
     run_notebook(path, env={"SLMLAB_SIZE": os.environ.get("SLMLAB_SIZE", "small"),
                             "SLMLAB_FIGURES": str(tmp_path / "figures")})
-    assert list((tmp_path / "figures").glob("*.png")), "the notebook wrote no figure"
+    written = [*(tmp_path / "figures").glob("*.png"), *(tmp_path / "figures").glob("*.csv")]
+    assert written, "the notebook wrote no figure and no table"
     claims.check(path.stem[:2], tmp_path / "figures", os.environ.get("SLMLAB_SIZE", "small"))

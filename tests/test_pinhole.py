@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 
 import slmlab
-from slmlab.models.pinhole import VARIANTS, calibrate_stereo
+from slmlab import cli
+from slmlab.models.pinhole import VARIANTS, calibrate_stereo, orthogonal_map
+from slmlab.studies.workspace import perfect_stage, volumetric_comparison
+from slmlab.virtual.sessions import volume_session
+from slmlab.virtual.simulate import stepped_target, target_set
 from slmlab.images.boards import chessboard_views
 from slmlab.virtual.sessions import tilted_session
 
@@ -47,12 +51,27 @@ def test_the_paper_finding_holds_for_x_motion_in_depth(small_sets):
     assert p.loc["XZ", "rms_mm"] > 3 * q.loc["XZ", "rms_mm"]
 
 
-def test_a_rigid_stage_map_cannot_absorb_the_depth_scale(small_sets):
+def test_a_rigid_stage_map_cannot_absorb_the_depth_scale_but_reads_a_mirror_image_the_right_way_round(small_sets):
+    """The virtual microscope's image is a mirror image of the stage (its axes run along +x, +y seen from
+    above), so the rigid camera-to-stage map is a reflection; a rotation forced on it read Y backwards (YY
+    errors of twice the Y travel)."""
     cal, val = small_sets
     kw = dict(variant="standard", views_from=("X", "Y", "Z"))
     affine = slmlab.evaluate(slmlab.calibrate(cal, "pinhole", stage_map="affine", **kw), val).summary.set_index("element")
-    rigid = slmlab.evaluate(slmlab.calibrate(cal, "pinhole", stage_map="rigid", **kw), val).summary.set_index("element")
+    rigid_model = slmlab.calibrate(cal, "pinhole", stage_map="rigid", **kw)
+    rigid = slmlab.evaluate(rigid_model, val).summary.set_index("element")
     assert rigid.loc["ZZ", "rms_mm"] > 3 * affine.loc["ZZ", "rms_mm"]
+    assert np.linalg.det(rigid_model.a) == pytest.approx(-1.0)
+    y_travel = np.ptp(val.sequence("Y")["stage_y_mm"])
+    assert rigid.loc["YY", "max_abs_mm"] < 0.01 * y_travel, rigid.loc["YY"]
+
+
+def test_the_orthogonal_map_is_a_rotation_or_a_reflection_whichever_fits():
+    rng = np.random.default_rng(0)
+    src = rng.normal(size=(50, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    for a in (q * np.sign(np.linalg.det(q)), -q * np.sign(np.linalg.det(q))):   # det +1, then det -1
+        np.testing.assert_allclose(orthogonal_map(src, src @ a.T + 1e-9 * rng.normal(size=src.shape)), a, atol=1e-6)
 
 
 def test_tilted_plate_calibration(small_sets):
@@ -82,3 +101,55 @@ def test_real_dot_target_stereo_rms_is_well_under_a_pixel(dataset_folder):
         obj = np.column_stack([m["col"] * 3.5, m["row"] * 3.5, np.zeros(len(m))]).astype(np.float32)
         views.append({"obj": obj, "l": m[["w1_l", "w2_l"]].to_numpy(np.float32), "r": m[["w1_r", "w2_r"]].to_numpy(np.float32)})
     assert calibrate_stereo(views, (2448, 2048), "standard", f_guess_px=4896).rms_px < 0.8
+
+
+# ----------------------------------------------------------------------------------- known 3D targets
+@pytest.fixture(scope="module")
+def stepped():
+    """The virtual stepped target (five heights over ±1 mm) in one pose, and a volume run to check on, on the
+    paper preset with a perfect stage (the known-target floor of notebook 10)."""
+    m = perfect_stage(slmlab.preset("paper"))
+    return m, target_set(m, stepped_target(), [[0.0, 0.0, 0.0]], seed=3), \
+        slmlab.simulate_set(m, volume_session(12, seed=5), seed=7)
+
+
+def test_pinhole_calibrates_a_one_pose_stepped_target_to_the_floor(stepped, tmp_path):
+    _, cal, val = stepped
+    d = slmlab.write_set(tmp_path / "set", cal)
+    assert cli.main(["calibrate", str(d), "--model", "pinhole", "--out", str(tmp_path / "p.json")]) == 0
+    model = slmlab.load_model(tmp_path / "p.json")
+    assert model.calibration["image_mirrored"] and model.calibration["held_back"] == "every 3rd dot"
+    scores = model.calibration["held_back_rms_mm"]
+    assert model.options["variant"] == min(scores, key=scores.get)
+    row = volumetric_comparison({"pinhole": model}, val).set_index("model").loc["pinhole"]
+    assert max(row[f"{c}_vs_floor"] for c in "XYZ") <= 1.5, row
+
+
+def test_a_target_that_is_not_mirrored_calibrates_too_and_one_mirrored_view_is_refused(stepped):
+    """The virtual microscope's image is a mirror image of the world; flip one image axis in both views and it
+    is not: the pinhole calibrates either way, to the same accuracy. One view flipped alone is refused."""
+    _, cal, _ = stepped
+    h = cal.image_size_px[1]
+    flipped = cal.points.assign(wl2=h - 1 - cal.points["wl2"], wr2=h - 1 - cal.points["wr2"])
+    plain = slmlab.calibrate(cal, "pinhole", variant="thin-prism")
+    model = slmlab.calibrate(slmlab.CalibrationSet(flipped, cal.meta), "pinhole", variant="thin-prism")
+    assert plain.calibration["image_mirrored"] and not model.calibration["image_mirrored"]
+    pts = flipped.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
+    e = model.reconstruct(pts[["wl1", "wl2", "wr1", "wr2"]].to_numpy()) - cal.world(pts)
+    assert np.sqrt(np.mean(e ** 2)) < 1e-3
+    one = cal.points.assign(wl2=h - 1 - cal.points["wl2"])
+    with pytest.raises(slmlab.SlmlabError, match="mirror image of the other"):
+        slmlab.calibrate(slmlab.CalibrationSet(one, cal.meta), "pinhole", variant="standard")
+
+
+def test_a_flat_target_in_one_pose_is_refused_for_the_real_reason(stepped):
+    m, _, _ = stepped
+    flat = stepped_target(rows=11, cols=11, steps_mm=(0.0,))
+    with pytest.raises(slmlab.SlmlabError, match="Z cannot be determined"):
+        slmlab.calibrate(target_set(m, flat, [[0.0, 0.0, 0.0]]), "pinhole")
+    tilted = flat.assign(z_mm=0.1 * flat["x_mm"])          # a plane, but not the focal plane
+    with pytest.raises(slmlab.SlmlabError, match="lie in one plane"):
+        slmlab.calibrate(target_set(m, tilted, [[0.0, 0.0, 0.0]]), "pinhole")
+    # the same board at two stage Z positions is a 3D target: no stage map needed, none asked for
+    two = slmlab.calibrate(target_set(m, flat, [[0.0, 0.0, -0.3], [0.0, 0.0, 0.3]]), "pinhole", variant="thin-prism")
+    assert two.calibration["world_from"].endswith("2 stage position(s)")

@@ -66,11 +66,12 @@ def test_the_default_model_file_round_trips_and_names_its_choice(tmp_path, zstac
     model = slmlab.calibrate(cal)
     assert model.name == "auto"
     sel = model.calibration["selection"]
-    assert set(sel["choice"]) == {"X", "Y", "Z"} and set(sel["held_out_rms_mm"]) == {"direct", "soloff"}
+    assert set(sel["choice"]) == {"X", "Y", "Z"} and set(sel["choice"].values()) <= set(sel["held_out_rms_mm"])
+    assert {"direct", "soloff", "polynomial-2", "polynomial-3"} <= set(sel["held_out_rms_mm"])
     back = slmlab.load_model(model.save(tmp_path / "m.json"))
     w = cal.points[["wl1", "wl2", "wr1", "wr2"]].dropna().to_numpy()[::50]
     assert np.array_equal(back.reconstruct(w), model.reconstruct(w))
-    assert np.allclose(back.uncertainty(w), model.uncertainty(w))
+    assert np.allclose(back.uncertainty(w), model.uncertainty(w)) and np.isfinite(model.uncertainty(w)).all()
 
 
 def test_a_stepped_target_in_one_pose_calibrates_without_stage_motion(perfect, volume):
@@ -104,7 +105,5 @@ def test_on_the_real_stereo_piv_rig_the_default_is_no_worse_than_a_plain_quadrat
     quad = slmlab.calibrate(cal, "quadratic")
     ref = rms(quad.reconstruct(w) - truth)
     ours = rms(slmlab.calibrate(cal).reconstruct(w) - truth)
-    three = rms(slmlab.calibrate(cal, "direct", variables=3).reconstruct(w) - truth)
     assert ours[1] <= 0.8 * ref[1], (ours, ref)              # Y: Soloff's polynomials
     assert (ours <= 1.05 * ref).all(), (ours, ref)           # X, Z: as good as the quadratic, within noise
-    assert three[0] > 1.5 * ours[0]                          # the fourth image coordinate carries X here

@@ -7,14 +7,14 @@ square and a triangle marker) at seven known Z positions, 1 mm apart: a Z stack 
 * :func:`pivchallenge_set`: the challenge's own picks, UVMAT ``GeometryCalib`` XML files (``X Y Z u v`` per
   ``PointCoord``, X, Y, Z in ``CoordUnit``), one per camera and plane, on the plate's first level. UVMAT
   writes pixel coordinates from 1 (MATLAB): the first pixel's centre is ``u = 1``, slmlab's ``w1 = 0``
-  (DATA_FORMAT.md). The conversion subtracts that one pixel (checked on the images: the picks sit
+  (README, "The format"). The conversion subtracts that one pixel (checked on the images: the picks sit
   1.03 ± 0.14 px and 0.99 ± 0.14 px from slmlab's edge-based centres in camera 1).
 * :func:`pivchallenge_image_set`: a set of the images themselves, as a camera wrote them (16-bit TIFF), for
   ``python -m slmlab extract``: ``stage.csv`` naming them, ``meta.json`` describing the plate.
 
 Conversion only: nothing is fitted here, and nothing is tuned to these data.
 
-Conventions (DATA_FORMAT.md): the first camera is the left view, the second the right; ``u`` (column) is
+Conventions (README, "The format"): the first camera is the left view, the second the right; ``u`` (column) is
 ``w1`` and ``v`` (row) is ``w2``; the Z positions, sorted, are the positions of sequence ``Z``. The picks'
 plate rows and columns are numbered so that slmlab's plate convention (:func:`slmlab.models.frames.plate_xy`:
 ``x = ((cols + 1)/2 − col)·pitch``, ``y = ((rows + 1)/2 − row)·pitch``) gives back the data's own X and Y,
@@ -189,14 +189,19 @@ def _free_pose_set(out_dir: Path, pairs: list[tuple[Path, Path]], plate: dict, s
 
 def dice_image_set(folder: str | Path, out_dir: str | Path) -> Path:
     """DICe's real stereo dot-target pairs (``CalB-sys2-00NN_{0,1}.jpeg``) as a set to extract: black dots at
-    3.5 mm with three donut markers in an L whose corner is dot (2, 2) of the 8 × 10 dots DICe uses
-    (``stereo_marker_dots_input.xml``); free hand-held poses."""
+    3.5 mm with three donut markers in an L; free hand-held poses.
+
+    The target is larger than the field; DICe uses the 10 × 8 dots of a box around the markers
+    (``stereo_marker_dots_input.xml``: ``num_cal_fiducials_x = 10``, ``_y = 8``, the corner donut at
+    ``cal_origin_x = cal_origin_y = 2`` counted from 0, the other donuts 6 and 4 dots from it counted
+    inclusively). In slmlab's plate numbering, from 1, that box is rows 1–8, columns 1–10 with the corner
+    donut at ``[3, 3]``; ``extract`` keeps the dots inside it, as DICe does."""
     folder = Path(folder)
     lefts = sorted((folder / "images").glob("CalB-sys2-*_0.jpeg"))
     if not lefts:
         raise SlmlabError("no DICe images images/CalB-sys2-*_0.jpeg", folder)
     pairs = [(p, p.with_name(p.name.replace("_0.", "_1."))) for p in lefts]
-    plate = {"rows": 8, "cols": 10, "pitch_mm": 3.5, "dot_diameter_mm": 1.75, "dots": "dark", "marker_origin": [2, 2]}
+    plate = {"rows": 8, "cols": 10, "pitch_mm": 3.5, "dot_diameter_mm": 1.75, "dots": "dark", "marker_origin": [3, 3]}
     return _free_pose_set(out_dir, pairs, plate, (2448, 2048), "DICe CalB-sys2 stereo dot target (Sandia), "
                           "cameras 0 (left) and 1 (right)")
 

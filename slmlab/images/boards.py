@@ -37,19 +37,28 @@ __all__ = ["detect_board", "charuco_board", "chessboard_views", "DICTIONARIES"]
 DICTIONARIES = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
 
 
-def charuco_board(spec) -> "cv2.aruco.CharucoBoard":
-    """The OpenCV ChArUco board of a plate spec (lengths in mm)."""
+def charuco_board(spec, path=None) -> "cv2.aruco.CharucoBoard":
+    """The OpenCV ChArUco board of a plate spec (lengths in mm). Only detection needs it, so its details are
+    checked here (``path``: the ``meta.json`` to name in the message), not when a set of points is read.
+    ``dictionary`` defaults to ``DICT_6X6_250``, ``marker_mm`` to 0.7 of the square."""
     b = spec.board
+    if not b:
+        raise SlmlabError(f"plates.{spec.name} is a ChArUco board: detecting it in images needs plates.{spec.name}"
+                          ".board = {squares: [x, y], marker_mm, dictionary, legacy}", path)
     name = str(b.get("dictionary", "DICT_6X6_250"))
     if name not in DICTIONARIES:
         raise SlmlabError(f"plates.{spec.name}.board.dictionary {name!r} is not an OpenCV ArUco dictionary; "
-                          f"use one of {', '.join(DICTIONARIES[:6])}, ...")
+                          f"use one of {', '.join(DICTIONARIES[:6])}, ...", path)
     squares = b.get("squares")
-    if not (isinstance(squares, (list, tuple)) and len(squares) == 2 and all(int(v) >= 2 for v in squares)):
-        raise SlmlabError(f"plates.{spec.name}.board.squares must be [x, y], the board's squares across and down")
-    marker = float(b.get("marker_mm", 0.7 * spec.pitch_mm))
-    if not 0 < marker < spec.pitch_mm:
-        raise SlmlabError(f"plates.{spec.name}.board.marker_mm must be positive and smaller than pitch_mm")
+    if not (isinstance(squares, (list, tuple)) and len(squares) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 2 and float(v).is_integer()
+                    for v in squares)):
+        raise SlmlabError(f"plates.{spec.name}.board.squares must be [x, y], the board's squares across and down",
+                          path)
+    marker = b.get("marker_mm", 0.7 * spec.pitch_mm)
+    if not (isinstance(marker, (int, float)) and not isinstance(marker, bool) and 0 < marker < spec.pitch_mm):
+        raise SlmlabError(f"plates.{spec.name}.board.marker_mm must be positive and smaller than pitch_mm", path)
+    marker = float(marker)
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
     board = cv2.aruco.CharucoBoard((int(squares[0]), int(squares[1])), spec.pitch_mm, marker, dictionary)
     board.setLegacyPattern(bool(b.get("legacy", False)))

@@ -38,12 +38,13 @@ from tqdm import tqdm
 from ..errors import SlmlabError
 from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
-from .boards import detect_board
+from .boards import charuco_board, detect_board
 from .dots import read_image
 from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image
 from .lattice import PlateLattice
 
-__all__ = ["PATTERNS", "PlateSpec", "plate_spec", "ImagePair", "image_pairs", "extract_set", "STAGE_FILE"]
+__all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePair", "image_pairs", "extract_set",
+           "STAGE_FILE"]
 
 STAGE_FILE = "stage.csv"
 
@@ -102,6 +103,17 @@ def plate_spec(meta: dict, name: str) -> PlateSpec:
                      None if dots is None else dots == "dark", p.get("pattern", "dots"), levels,
                      None if p.get("level_offset_mm") is None else float(p["level_offset_mm"]),
                      (int(origin[0]), int(origin[1])), dict(p.get("board", {})))
+
+
+def check_extractable(meta: dict, spec: PlateSpec, path: Path) -> None:
+    """What only finding a plate in images needs, which :func:`slmlab.io.read_meta` leaves to extraction (a set
+    whose ``points.csv`` is given does without): ``dot_diameter_mm`` of a dot plate, a ChArUco board's
+    ``board`` (:func:`slmlab.images.boards.charuco_board`). ``path``: the ``meta.json``, named in the message."""
+    if spec.pattern == "dots" and meta["plates"][spec.name].get("dot_diameter_mm") is None:
+        raise SlmlabError(f"plates.{spec.name}.dot_diameter_mm is missing; extracting dots from images needs it: "
+                          "give the dots' diameter in mm", path)
+    if spec.pattern == "charuco":
+        charuco_board(spec, path)
 
 
 @dataclass(frozen=True)
@@ -265,7 +277,9 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
         name = "grid" if pr.sequence == "grid" else "moving"
         if name not in meta["plates"]:
             raise SlmlabError(f"sequence {pr.sequence} needs plates.{name} in meta.json", set_dir / "meta.json")
-        specs[name] = plate_spec(meta, name)
+        if name not in specs:
+            specs[name] = plate_spec(meta, name)
+            check_extractable(meta, specs[name], set_dir / "meta.json")
     notes: list[str] = []
     for pr in pairs:
         for side, path in (("l", pr.left), ("r", pr.right)):

@@ -1,27 +1,36 @@
-"""The default model: per coordinate, the candidate with the smallest held-out error on the calibration set.
+"""The default model: per coordinate, the candidate with the smallest held-out error inside the calibrated
+volume, and never a model that is not clearly better than a plain polynomial.
 
 No single map from image to world is best on every rig. On a CMO microscope the direct model's three
 combinations ``(v1, v2, D)`` carry everything and it reaches the noise floor; on an oblique stereo-PIV rig
 the fourth image coordinate carries information, and a polynomial from world to image per camera (the
-Soloff model) may fit the physics better in one coordinate and worse in another. The ``auto`` model
+Soloff model) may fit the physics better in one coordinate and worse in another; on a rig nobody shaped a
+model for, a plain least-squares polynomial in the four image coordinates may beat both. The ``auto`` model
 (slmlab's default) lets the calibration set decide, never test data:
 
-1. **Folds** (:func:`slmlab.models.folds.row_folds`): the set's stage positions (planes of a Z stack) are held out in turn:
-   the interior ones one at a time where a sequence has at most :data:`slmlab.models.folds.LEAVE_ONE_OUT_MAX` positions (a
-   calibration is used within its range, so each sequence's first and last position always calibrate), else
-   every third position in three folds. Where the dots' world positions are known, the folds are crossed
-   with every fifth dot, so that the test rows are new in depth and across the field alike. A target imaged
-   in one pose holds out every fifth dot.
-2. **Held-out error** (:func:`slmlab.models.folds.held_out_errors`) of each candidate fitted on the rest, per coordinate: the
-   reconstruction of the held-out rows against their world position, net of one common offset (a Z stack or
-   a known target), or of one offset per dot and sequence estimated on the training positions (stage moves
-   of a plate whose place on the stage is unknown).
-3. **Choice**: per coordinate, the candidate with the smallest held-out RMS; within 2 % of the best the
-   earlier candidate in :data:`CANDIDATES` is kept (the direct model first). The chosen candidates are then
-   fitted on the whole set.
+1. **Candidates** (:data:`CANDIDATES`): the direct model, the Soloff model (where the dots' world positions
+   are known) and the plain polynomial of each degree up to 4 (:class:`slmlab.models.reference.PlainPolynomial`;
+   on stage moves the same polynomial of the four image coordinates estimated by the direct model's solver,
+   the stage's error at each position a random effect: ordinary least squares lets a stage's positioning
+   noise into the polynomial's shape, and on the ``paper`` preset costs 15 % in Y over the volume).
+   Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models pin their
+   degree in depth below the number of distinct depths.
+2. **Held-out error inside the calibrated volume** (:func:`slmlab.models.folds.row_folds`): held-out dots
+   within positions; crossed with held-out interior planes where a stack has enough of them
+   (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`); interior stage positions on stage moves. Never whole
+   positions where there are too few to interpolate between: holding out one of two planes measures an
+   extrapolation over the full depth, which says nothing of the error inside it. Then nothing measured says how
+   a plain polynomial bends between the depths (and just past them): one whose difference there from every
+   depth-pinned candidate varies across the field by more than :data:`BETWEEN_DEPTHS` times their held-out
+   errors is dropped for that coordinate (a cubic through two planes can put the midplane far off while
+   fitting both planes to the noise). A bow in depth the same across the field at one depth is not held against
+   it: perspective bends depth so between planes, and a depth-pinned model is the one that cannot follow.
+3. **Choice**, per coordinate: the plain polynomial with the smallest held-out error (the lowest degree
+   within :data:`TIE` of the best), unless another candidate is clearly better, by more than :data:`MARGIN`
+   of it; then the best of those (within :data:`TIE`, the earlier in :data:`CANDIDATES`).
 
-Candidates that cannot calibrate the set are skipped (the Soloff model needs the dots' world positions, so
-stage moves of a plate with an unknown place leave the direct model alone, with no held-out fits at all).
+The choice and its evidence (every candidate's held-out RMS per coordinate, the folds, what was skipped and
+why) are in the model file under ``calibration.selection``, and ``evaluate`` prints them.
 """
 
 from __future__ import annotations
@@ -29,34 +38,110 @@ from __future__ import annotations
 import inspect
 
 import numpy as np
+import pandas as pd
 
 from ..errors import SlmlabError
 from ..io import CalibrationSet
 from .base import Model, get_model_class, register
-from .folds import held_out_errors, row_folds
+from .direct import check_options
+from .folds import PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, held_out_errors, row_folds, thin_dots
 from .frames import world_positions
+from .reference import DEGREES as POLYNOMIAL_DEGREES
 
-__all__ = ["CANDIDATES", "TIE", "AutoModel"]
+__all__ = ["CANDIDATES", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
+           "selection_table", "AutoModel"]
 
-#: the candidates, in order of preference
-CANDIDATES = ("direct", "soloff")
+#: the candidates, in order of preference ("polynomial": the plain polynomial of every allowed degree)
+CANDIDATES = ("direct", "soloff", "polynomial")
+#: within this share of the best held-out error, candidates are equally good
 TIE = 0.02
+#: a candidate other than the plain polynomial wins only where it is better than it by more than this share
+MARGIN = 0.05
+#: a plain polynomial that disagrees between the calibrated depths with every depth-pinned candidate (direct,
+#: soloff) by more than this many times the larger of their held-out errors bends where nothing was measured
+BETWEEN_DEPTHS = 1.5
+#: the held-out comparison runs on at most this many rows (every k-th dot): its ranking, not the fits, needs them
+COMPARISON_ROWS = 4000
+
+
+def candidate_list(candidates, world: np.ndarray, mode: str) -> tuple[list[tuple[str, str, dict]], dict]:
+    """``[(label, model name, fixed options)]`` of the candidates that apply to the set, in order of
+    preference, and ``{label: why not}`` of those that do not. ``"polynomial"`` expands to
+    ``polynomial-1`` … ``polynomial-4``; ``"polynomial-3"`` names one degree."""
+    out, skipped = [], {}
+    for c in candidates:
+        name, _, deg = c.partition("-")
+        if c == "auto":
+            raise SlmlabError("the auto model cannot be its own candidate")
+        if name == "polynomial":  # on stage moves estimated with the stage's error per position as a random
+            # effect (the direct model's solver on the four image coordinates: the same polynomials)
+            for d in ([int(deg)] if deg else POLYNOMIAL_DEGREES):
+                out.append((f"polynomial-{d}", *(("direct", {"variables": 4, "degree": d}) if mode == "moves"
+                                                  else ("polynomial", {"degree": d}))))
+            continue
+        get_model_class(c)
+        if c == "soloff" and mode == "moves":
+            skipped[c] = "needs the dots' world positions (a Z stack or a known target)"
+        else:
+            out.append((c, c, {}))
+    return out, skipped
+
+
+def _is_polynomial(label: str) -> bool:
+    return label.startswith("polynomial")
+
+
+def choose(cv: dict[str, list[float]], order: list[str]) -> list[str]:
+    """Per coordinate, the label chosen from the held-out errors ``cv`` (module docstring, step 3); ``order``:
+    the labels in order of preference."""
+    choice = []
+    for k in range(3):
+        polys = [c for c in order if _is_polynomial(c) and c in cv]
+        others = [c for c in order if not _is_polynomial(c) and c in cv]
+
+        def best(labels):
+            low = min(cv[c][k] for c in labels)
+            return next(c for c in labels if cv[c][k] <= low * (1 + TIE))
+        if not polys or not others:
+            choice.append(best(polys or others))
+            continue
+        p, o = best(polys), best(others)
+        choice.append(o if cv[o][k] < (1 - MARGIN) * cv[p][k] else p)
+    return choice
+
+
+def selection_table(model: Model) -> pd.DataFrame | None:
+    """The default's evidence as a table: per candidate, its settings, held-out RMS per coordinate [µm] and
+    which coordinates chose it (``None`` for a model that chose nothing)."""
+    sel = model.calibration.get("selection") if isinstance(model.calibration, dict) else None
+    if not sel or not sel.get("held_out_rms_mm"):
+        return None
+    rows = []
+    for label, v in sel["held_out_rms_mm"].items():
+        chosen = "".join(c for c, k in sel["choice"].items() if k == label)
+        rows.append({"candidate": label, "settings": sel.get("described", {}).get(label, label),
+                     **{f"held_out_{c}_um": 1e3 * v[k] for k, c in enumerate("XYZ")}, "chosen_for": chosen or "-"})
+    return pd.DataFrame(rows)
 
 
 @register
 class AutoModel(Model):
-    """Per coordinate, the candidate model with the smallest held-out error on the calibration set."""
+    """Per coordinate, the candidate with the smallest held-out error, where it is clearly better than a plain
+    polynomial (module docstring)."""
 
     name = "auto"
-    summary = ("slmlab's default: per coordinate, the candidate (direct, soloff) with the smallest error on "
-               "held-out positions or planes of the calibration set; the choice is in the model file")
+    summary = ("slmlab's default: per coordinate, the candidate (direct, soloff, plain polynomials) with the "
+               "smallest error on held-out dots and planes inside the calibrated volume, a plain polynomial unless "
+               "another is clearly better; the choice and its evidence are in the model file")
     accuracy_rank = 1
     units = {"models": "each candidate's own parameters and units"}
 
-    def __init__(self, choice: list[str], models: dict[str, Model], **kw):
+    def __init__(self, choice: list[str], models: dict[str, Model], candidates: dict[str, Model] | None = None, **kw):
         super().__init__(**kw)
         self.choice = list(choice)
         self.models = models
+        #: every candidate as fitted on the whole set (in memory only: the file keeps the chosen ones)
+        self.candidates = dict(candidates or models)
 
     @classmethod
     def fit(cls, cal: CalibrationSet, *, candidates=CANDIDATES, mode: str = "auto", degree=None,
@@ -64,80 +149,50 @@ class AutoModel(Model):
             centroid_noise_px: float = 0.02, **_):
         """Fit every candidate that can calibrate ``cal``, choose per coordinate by held-out error.
 
-        ``candidates``: model names, in order of preference. The other options go to the candidates that
-        take them (:class:`slmlab.models.direct.DirectModel`, :class:`slmlab.models.soloff.SoloffModel`); ``degree`` is the
-        direct model's (one whole number, or three: X, Y, Z)."""
-        candidates = [str(c) for c in np.atleast_1d(candidates)]
-        for c in candidates:
-            get_model_class(c)
-            if c == "auto":
-                raise SlmlabError("the auto model cannot be its own candidate")
+        ``candidates``: model names, in order of preference (``"polynomial"`` for the plain polynomials of
+        every allowed degree, ``"polynomial-3"`` for one). The other options go to the candidates that take
+        them (:class:`slmlab.models.direct.DirectModel`, :class:`slmlab.models.soloff.SoloffModel`);
+        ``degree`` is the direct model's (one whole number, or three: X, Y, Z)."""
+        check_options(degree=degree, length_reference=length_reference, stage_scale_sigma=stage_scale_sigma,
+                      variables=variables)  # a user's mistake is said, not skipped with a candidate
         given = {"mode": mode, "variables": variables, "length_reference": length_reference,
                  "stage_scale_sigma": stage_scale_sigma, "centroid_noise_px": centroid_noise_px}
-
-        def options_for(name: str) -> dict:
-            params = inspect.signature(get_model_class(name).fit).parameters
-            out = {k: v for k, v in given.items() if k in params}
-            if degree is not None and name == "direct":
-                out["degree"] = degree
-            return out
-
-        _, _, mode = world_positions(cal, mode)
-        usable = [c for c in candidates if not (c == "soloff" and mode == "moves")]
-        if not usable:
-            raise SlmlabError(f"none of the candidates {', '.join(candidates)} can calibrate this set", cal.path)
-        cv: dict[str, list[float]] = {}
-        skipped: dict[str, str] = {c: "needs the dots' world positions (a Z stack or a known target)"
-                                   for c in candidates if c not in usable}
-        fitted: dict[str, Model] = {}
-        for c in usable:  # each candidate chooses its own settings (degrees, ...) on the whole set
-            try:
-                fitted[c] = get_model_class(c).fit(cal, **options_for(c))
-            except SlmlabError as exc:
-                if len(usable) == 1:
-                    raise
-                skipped[c] = exc.reason
-        usable = [c for c in usable if c in fitted]
-        if not usable:
-            raise SlmlabError("no candidate model can calibrate this set: "
-                              + "; ".join(f"{k}: {v}" for k, v in skipped.items()), cal.path)
-        if len(usable) > 1:  # then they are compared, as chosen, on held-out positions
-            pts, _, _ = world_positions(cal)
-            folds = row_folds(pts, mode)
-            for c in usable:
-                try:
-                    cv[c] = [float(v) for v in held_out_errors(cal, c, {**options_for(c), **fitted[c].fixed_options()},
-                                                               folds)]
-                except SlmlabError as exc:
-                    skipped[c] = f"not cross-validated: {exc.reason}"
-            usable = [c for c in usable if c in cv] or usable[:1]
-        choice = []
-        for k in range(3):
-            if len(usable) == 1:
-                choice.append(usable[0])
-                continue
-            best = min(cv[c][k] for c in usable)
-            choice.append(next(c for c in usable if cv[c][k] <= best * (1 + TIE)))
+        pts, world, mode = world_positions(cal, mode)
+        cands, skipped = candidate_list([str(c) for c in np.atleast_1d(candidates)], world, mode)
+        if not cands:
+            raise SlmlabError(f"none of the candidates {', '.join(map(str, np.atleast_1d(candidates)))} can "
+                              "calibrate this set", cal.path)
+        options = {label: {**_options_for(name, given, degree), **fixed} for label, name, fixed in cands}
+        fitted = _fit_candidates(cal, cands, options, skipped)
+        cv = _held_out(cal, cands, fitted, options, skipped) if len(fitted) > 1 else {}
+        dropped = _between_depths_guard(pts, world, mode, fitted, cv, skipped)
+        order = [label for label, _, _ in cands if label in fitted]
+        usable = {c: [float("inf") if (c, k) in dropped else v for k, v in enumerate(e)] for c, e in cv.items()}
+        choice = choose(usable, order) if cv else [order[0]] * 3
         models = {c: fitted[c] for c in dict.fromkeys(choice)}
         for m in models.values():
             m.calibration = {**cal.summary(), **m.calibration}
         # the model chosen for most coordinates lends its report (degrees, scatter, rejected rows, ...)
         primary = models[max(models, key=choice.count)]
         selection = {"choice": dict(zip("XYZ", choice)), "mode": mode, "held_out_rms_mm": cv,
+                     "described": {c: m.describe() for c, m in fitted.items()},
                      "held_out_by": ("not needed: one candidate" if len(cv) < 2 else
-                                     f"{len(row_folds(world_positions(cal)[0], mode))} folds of positions "
-                                     + ("(whole positions)" if mode == "moves" else "crossed with every fifth dot")),
+                                     f"{fold_description(pts, mode, diagonal=True)}, on {len(_thinned(cal).points)} rows"),
+                     "rule": (f"per coordinate the plain polynomial with the smallest held-out RMS, unless another "
+                              f"candidate is lower by more than {MARGIN:.0%}; ties within {TIE:.0%}"),
                      "skipped": skipped}
-        return cls(choice, models, options={**primary.options, "candidates": candidates},
+        return cls(choice, models, fitted,
+                   options={**primary.options, "candidates": [str(c) for c in np.atleast_1d(candidates)]},
                    calibration={**primary.calibration, "selection": selection})
 
     def describe(self) -> str:
-        parts = [f"{''.join(c for c, k in zip('XYZ', self.choice) if k == n)}: {m.describe()}"
+        parts = [f"{''.join(c for c, k in zip('XYZ', self.choice) if k == n)}: "
+                 + (m.describe() if n.partition("-")[0] == m.name else f"{n} as {m.describe()}")
                  for n, m in self.models.items()]
         return "auto (" + "; ".join(parts) + ")"
 
     def reconstruct(self, w: np.ndarray) -> np.ndarray:
-        w = np.atleast_2d(np.asarray(w, float))
+        w = np.asarray(w, float).reshape(-1, 4)
         if len(self.models) == 1:
             return next(iter(self.models.values())).reconstruct(w)
         out = np.empty((len(w), 3))
@@ -149,12 +204,21 @@ class AutoModel(Model):
         return out
 
     def uncertainty(self, w: np.ndarray) -> np.ndarray:
-        """1σ ``(n, 3)`` [mm] of each coordinate from the model chosen for it."""
-        w = np.atleast_2d(np.asarray(w, float))
+        """1σ ``(n, 3)`` [mm] of each coordinate from the model chosen for it (NaN where that model gives
+        none: the plain polynomial)."""
+        return self._per_coordinate("uncertainty", w)
+
+    def calibration_sigma(self, w: np.ndarray) -> np.ndarray:
+        """1σ ``(n, 3)`` [mm] of the calibration alone (the coefficients' covariance) of each coordinate, from
+        the model chosen for it (NaN where that model gives none)."""
+        return self._per_coordinate("calibration_sigma", w)
+
+    def _per_coordinate(self, method: str, w: np.ndarray) -> np.ndarray:
+        w = np.asarray(w, float).reshape(-1, 4)
         out = np.full((len(w), 3), np.nan)
         for name, m in self.models.items():
-            if hasattr(m, "uncertainty"):
-                s = m.uncertainty(w)
+            if hasattr(m, method):
+                s = getattr(m, method)(w)
                 for k, c in enumerate(self.choice):
                     if c == name:
                         out[:, k] = s[:, k]
@@ -169,16 +233,105 @@ class AutoModel(Model):
 
     def parameters_dict(self) -> dict:
         return {"choice": self.choice,
-                "models": {n: {"parameters": m.parameters_dict(), "options": m.options, "calibration": m.calibration}
-                           for n, m in self.models.items()}}
+                "models": {n: {"model": m.name, "parameters": m.parameters_dict(), "options": m.options,
+                               "calibration": m.calibration} for n, m in self.models.items()}}
 
     @classmethod
     def from_parameters(cls, parameters, calibration, options):
         models = {}
         for n, d in parameters["models"].items():
-            models[n] = get_model_class(n).from_parameters(d["parameters"], d.get("calibration") or {},
-                                                            d.get("options") or {})
+            models[n] = get_model_class(d.get("model", n)).from_parameters(d["parameters"], d.get("calibration") or {},
+                                                                           d.get("options") or {})
         choice = [str(c) for c in parameters["choice"]]
         if len(choice) != 3 or any(c not in models for c in choice):
             raise ValueError("choice must name a fitted model for each of X, Y, Z")
         return cls(choice, models, calibration=calibration, options=options)
+
+
+def _options_for(name: str, given: dict, degree) -> dict:
+    """The options of ``auto`` that candidate ``name``'s ``fit`` takes (``degree`` is the direct model's)."""
+    params = inspect.signature(get_model_class(name).fit).parameters
+    out = {k: v for k, v in given.items() if k in params}
+    if degree is not None and name == "direct":
+        out["degree"] = degree
+    return out
+
+
+def _fit_candidates(cal: CalibrationSet, cands, options: dict, skipped: dict) -> dict[str, Model]:
+    """Each candidate fitted on the whole set (choosing its own settings); one that cannot calibrate the set
+    is skipped with its reason, unless none can."""
+    fitted: dict[str, Model] = {}
+    for label, name, _ in cands:
+        try:
+            fitted[label] = get_model_class(name).fit(cal, **options[label])
+        except SlmlabError as exc:
+            skipped[label] = exc.reason
+    if not fitted:
+        raise SlmlabError("no candidate model can calibrate this set: "
+                          + "; ".join(f"{k}: {v}" for k, v in skipped.items()), cal.path)
+    return fitted
+
+
+def _thinned(cal: CalibrationSet) -> CalibrationSet:
+    """The set with every k-th dot of its moving sequences, at most :data:`COMPARISON_ROWS` rows of them."""
+    moving = (cal.points["sequence"] != "grid").to_numpy()
+    keep = ~moving
+    keep[moving] = thin_dots(cal.points[moving], COMPARISON_ROWS)
+    return CalibrationSet(cal.points[keep].reset_index(drop=True), cal.meta, path=cal.path)
+
+
+def _held_out(cal: CalibrationSet, cands, fitted: dict, options: dict, skipped: dict) -> dict[str, list[float]]:
+    """Held-out RMS [mm] per coordinate of every fitted candidate, as chosen on the whole set, on the same
+    folds of the (thinned) set (module docstring, step 2)."""
+    sub = _thinned(cal)
+    pts, _, mode = world_positions(sub)
+    folds = row_folds(pts, mode, diagonal=True)
+    cv = {}
+    for label, name, _ in cands:
+        if label not in fitted:
+            continue
+        try:
+            cv[label] = [float(v) for v in held_out_errors(sub, name, {**options[label], **fitted[label].fixed_options()},
+                                                           folds)]
+        except SlmlabError as exc:
+            skipped[label] = f"not cross-validated: {exc.reason}"
+    return cv
+
+
+def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped: dict) -> set[tuple[str, int]]:
+    """Where held-out dots are all a set with few depths allows (:func:`slmlab.models.folds.row_folds`), a plain
+    polynomial is dropped for a coordinate where, between the calibrated depths
+    (:func:`slmlab.models.folds.between_depths`), it disagrees with every depth-pinned candidate by more than
+    :data:`BETWEEN_DEPTHS` times the larger held-out error. Returns the ``(label, coordinate)`` pairs dropped;
+    the reasons go to ``skipped``."""
+    depths = len(np.unique(np.round(world[:, 2], 6)))
+    pinned = [c for c in ("direct", "soloff") if c in cv]
+    dropped: set[tuple[str, int]] = set()
+    if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not pinned:
+        return dropped
+    w, level = between_depths(pts, world)
+    if not len(w):
+        return dropped
+    refs = {c: fitted[c].reconstruct(w) for c in pinned}
+    for label in [c for c in cv if _is_polynomial(c)]:
+        p = fitted[label].reconstruct(w)
+        for k, axis in enumerate("XYZ"):
+            gaps = {r: _bend(p[:, k] - q[:, k], level if k == 2 else np.zeros_like(level), centred=k == 2)
+                    for r, q in refs.items()}
+            if all(g > BETWEEN_DEPTHS * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
+                dropped.add((label, k))
+                skipped[f"{label} ({axis})"] = (f"bends between the {depths} calibrated depths: "
+                                                + ", ".join(f"{1e3 * g:.3g} um from {r}" for r, g in gaps.items())
+                                                + f", held-out {1e3 * min(cv[r][k] for r in pinned):.3g} um")
+    return dropped
+
+
+def _bend(diff: np.ndarray, level: np.ndarray, *, centred: bool) -> float:
+    """RMS of two models' difference at the points between depths; for depth (``centred``) less its mean at each
+    level: a bow in depth the same across the field at one depth (what perspective does between planes, which a
+    depth-pinned model cannot follow and a polynomial can) is not held against either. A difference that varies
+    across the field, or a lateral shift with depth that no stage or lens makes, is a bend nothing measured."""
+    if not centred:
+        return float(np.sqrt(np.mean(diff ** 2)))
+    means = np.bincount(level, diff) / np.maximum(np.bincount(level), 1)
+    return float(np.sqrt(np.mean((diff - means[level]) ** 2)))

@@ -46,7 +46,7 @@ user can declare its uncertainty from the stage's datasheet as ``stage_scale_sig
 * Outliers (mismatched or misindexed dots) are down-weighted by iteratively reweighted least squares (Huber
   weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
 * Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
-  defocus, METHOD.md §7), estimated from the scatter within positions; the coefficients' covariance (which
+  defocus), estimated from the scatter within positions; the coefficients' covariance (which
   carries the stage's random errors through the generalised least squares); and the scale uncertainty of
   each axis (the plate's for X and Y with ``length_reference="plate"``, the declared ``stage_scale_sigma``
   otherwise) times the distance from the frame's reference.
@@ -58,19 +58,21 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 import pandas as pd
+from scipy import sparse
 
 from ..errors import SlmlabError
 from ..io import CalibrationSet, IMAGE_COLUMNS
 from ..linefit import point_keys
 from .base import Model, register
-from .folds import row_folds
+from .folds import row_folds, thin_dots
 from .frames import plate_xy, world_positions
 
-__all__ = ["features", "fit_direct", "fit_frame", "DirectModel", "LEGACY_FRAME"]
+__all__ = ["features", "fit_direct", "fit_frame", "check_options", "DirectModel", "LEGACY_FRAME", "DEGREE_ROWS"]
 
 #: the normalisation of model files written before the frame was fitted: centre, scale, disparity direction
 LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
 RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal matrices
+DEGREE_ROWS = 6000  # sets with more rows choose their degree on every k-th dot (at most this many rows)
 
 
 def _exponents(degree: int, nvar: int = 3) -> list[tuple[int, ...]]:
@@ -179,8 +181,11 @@ def _rows(cal: CalibrationSet, mode: str):
 
 
 def _means(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
+    """Weighted means ``(n, m)`` of the rows of ``x`` per group ``inv``: one sparse product (the same products
+    summed in the same order as a ``bincount`` per column, so the same bits, in one pass)."""
     sw = np.maximum(np.bincount(inv, wts, n), 1e-300)
-    return np.stack([np.bincount(inv, wts * x[:, k], n) for k in range(x.shape[1])], axis=1) / sw[:, None]
+    groups = sparse.csc_matrix((wts, inv, np.arange(len(inv) + 1)), shape=(n, len(inv)))  # one row per column
+    return (groups @ x) / sw[:, None]
 
 
 # --------------------------------------------------------------------------------------------- solver
@@ -439,6 +444,9 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
             frames = {4: frames[4]}
     if degree is None:
         folds = _degree_folds(pts, mode)
+        if len(pts) > DEGREE_ROWS:  # the degree is chosen on every k-th dot: a ranking, not the fit, needs them
+            keep = thin_dots(pts, DEGREE_ROWS)
+            folds = [(tr & keep, te & keep) for tr, te in folds]
         frame, degrees, cv, variables_cv = _choose_variables_and_degrees(
             cal, w, frames, target, groups, positions, folds, variance, precision, depth_cap, max_degree, mode)
     else:
@@ -504,8 +512,9 @@ def _choose_variables_and_degrees(cal, w, frames, target, groups, positions, fol
                           "degree=... or image more positions", cal.path)
     # a polynomial of degree d along a sequence needs more than d of its positions to be pinned down
     n_pos = pd.Series(positions).groupby(positions // 1_000_000).nunique()
+    # (on stage moves; where the dots' world positions are known the depth variable's own cap says it)
     sampled = (min(pd.Series(positions[tr]).groupby(positions[tr] // 1_000_000).nunique().min() for tr in trains)
-               if n_pos.min() >= 3 else max_degree + 1)
+               if n_pos.min() >= 3 and mode == "moves" else max_degree + 1)
     chosen, variables_cv = {}, {}
     for nv, fr in frames.items():
         chosen[nv] = _choose_degrees(w, fr, target, groups, positions, folds, variance, precision, depth_cap,
@@ -543,6 +552,21 @@ def _point_scatter(pts, fit: dict, mode: str, depth) -> tuple[np.ndarray, np.nda
         dof *= np.mean(n_d[dinv] / np.maximum(n_d[dinv] - 1, 1))
         sigma = np.sqrt(np.sum(wts[:, None] * within ** 2, 0) / wts.sum() * dof)
     return sigma, _noise_vs_depth(depth, within, wts, dof)
+
+
+def check_options(*, degree=None, length_reference: str = "stage", stage_scale_sigma: float = 0.0,
+                  variables="auto") -> None:
+    """Raise :class:`SlmlabError` on an option of the direct model a user got wrong (one line, the remedy)."""
+    if length_reference not in ("plate", "stage"):
+        raise SlmlabError(f"unknown length reference {length_reference!r}; use 'plate' or 'stage'")
+    if degree is not None and not all(isinstance(d, (int, np.integer)) and 1 <= d <= 5
+                                      for d in np.atleast_1d(degree).tolist()):
+        raise SlmlabError(f"degree must be a whole number 1 to 5, or three of them (X, Y, Z), not {degree!r}")
+    if not (isinstance(stage_scale_sigma, (int, float)) and 0 <= stage_scale_sigma < 0.1):
+        raise SlmlabError(f"stage_scale_sigma is a relative 1-sigma scale uncertainty (e.g. 1e-4), "
+                          f"not {stage_scale_sigma!r}")
+    if variables not in (3, 4, "auto"):
+        raise SlmlabError(f"variables must be 3, 4 or 'auto', not {variables!r}")
 
 
 @register
@@ -583,16 +607,8 @@ class DirectModel(Model):
         ``stage_scale_sigma``: the stage's scale uncertainty (relative, 1σ, from its datasheet), added to the
         per-point uncertainty of the axes whose scale is the stage's; ``variables``: 3, 4 or ``"auto"``
         (:func:`fit_direct`)."""
-        if length_reference not in ("plate", "stage"):
-            raise SlmlabError(f"unknown length reference {length_reference!r}; use 'plate' or 'stage'")
-        if degree is not None and not all(isinstance(d, (int, np.integer)) and 1 <= d <= 5
-                                          for d in np.atleast_1d(degree).tolist()):
-            raise SlmlabError(f"degree must be a whole number 1 to 5, or three of them (X, Y, Z), not {degree!r}")
-        if not (isinstance(stage_scale_sigma, (int, float)) and 0 <= stage_scale_sigma < 0.1):
-            raise SlmlabError(f"stage_scale_sigma is a relative 1-sigma scale uncertainty (e.g. 1e-4), "
-                              f"not {stage_scale_sigma!r}")
-        if variables not in (3, 4, "auto"):
-            raise SlmlabError(f"variables must be 3, 4 or 'auto', not {variables!r}")
+        check_options(degree=degree, length_reference=length_reference, stage_scale_sigma=stage_scale_sigma,
+                      variables=variables)
         f = fit_direct(cal, degree, mode=mode, length_reference=length_reference, variables=variables)
         ref = f["length_reference"]
         if f["mode"] in ("zstack", "target"):  # X, Y from the plate's lattice or the target

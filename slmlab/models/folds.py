@@ -10,21 +10,24 @@ model's degrees.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 from .base import get_model_class
 from .frames import world_positions
 
-__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "position_folds", "row_folds", "dot_folds", "held_out_errors"]
-
+__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
+           "fold_description", "held_out_errors", "between_depths", "thin_dots"]
 
 #: sequences with at most this many positions are cross-validated one position at a time
 LEAVE_ONE_OUT_MAX = 8
-
-
 #: dots are held out one fifth at a time
 DOT_FOLDS = 5
+#: a stack (or a known target at several stage positions) has its interior planes held out, crossed with the
+#: dots, from this many planes on; with fewer, a model fitted without one of them would be asked something the
+#: whole set never asks it (a depth it cannot bend through), so dots are held out within every plane
+PLANES_FOR_PLANE_FOLDS = 5
 
 
 def position_folds(pts) -> list[np.ndarray]:
@@ -43,27 +46,47 @@ def position_folds(pts) -> list[np.ndarray]:
 
 
 def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(train, test)`` row masks of the held-out fits (module docstring, step 1).
+    """``(train, test)`` row masks of the held-out fits: what a user will see, inside the calibrated volume.
 
-    With stage moves of a plate whose place is unknown (``mode == "moves"``) whole positions are held out:
-    a new dot's offset could not be known. Where the dots' world positions are known (a Z stack, a known
-    target) the folds are **crossed**: the test rows are at held-out positions *and* held-out dots (every
-    fifth dot, :func:`dot_folds`), and the training rows at neither. Every plane of a Z stack shows the same dots, so holding
-    out planes alone would never test the map between the dots; a polynomial that overfits across the
-    field passes such a test (on the PIV Challenge picks, a 16-dot lattice, it put dots half a pitch away
-    0.7 mm off in depth). A target in one pose holds out dots only."""
+    * Stage moves of a plate whose place is unknown (``mode == "moves"``): interior positions of each
+      sequence (:func:`position_folds`); a new dot's offset could not be known, so dots are not held out.
+    * The dots' world positions known (a Z stack, a known target), with at least
+      :data:`PLANES_FOR_PLANE_FOLDS` positions per sequence: **crossed** folds, the test rows at held-out
+      interior positions *and* held-out dots (every fifth dot, :func:`dot_folds`), the training rows at neither.
+      Every plane of a Z stack shows the same dots, so holding out planes alone would never test the map
+      between the dots (on the PIV Challenge picks, a 16-dot lattice, a polynomial that overfits across the
+      field put dots half a pitch away 0.7 mm off in depth). ``diagonal``: one fifth of the dots per
+      position fold in turn (at least five folds), rather than each fifth with each position.
+    * Fewer positions (one pose, two or three planes): held-out dots within every position. Holding out one
+      of two planes would measure an extrapolation over the whole depth from the other, which says nothing of
+      the error inside the calibrated volume; the depth is then pinned by the models' own limits (a depth
+      degree below the number of planes)."""
     key = dot_folds(pts)
-    if pts.groupby("sequence")["position"].nunique().min() < 2:
-        out = [(key != r, key == r) for r in range(DOT_FOLDS)]
-    elif mode == "moves":
+    n_pos = pts.groupby("sequence")["position"].nunique().min()
+    if mode == "moves" and n_pos >= 2:
         out = [(~m, m) for m in position_folds(pts)]
+    elif mode == "moves" or n_pos < PLANES_FOR_PLANE_FOLDS:
+        out = [(key != r, key == r) for r in range(DOT_FOLDS)]
     else:
         held = position_folds(pts)
         if len(held) <= 3 and not diagonal:  # few held-out positions: each with each fifth of the dots
             out = [(~p & (key != r), p & (key == r)) for p in held for r in range(DOT_FOLDS)]
-        else:  # many (or ``diagonal``): one fifth of the dots per position fold, in turn
-            out = [(~p & (key != k % DOT_FOLDS), p & (key == k % DOT_FOLDS)) for k, p in enumerate(held)]
+        else:  # many (or ``diagonal``): one fifth of the dots per position fold, in turn, every fifth at least once
+            n = max(len(held), DOT_FOLDS)
+            out = [(~held[k % len(held)] & (key != k % DOT_FOLDS), held[k % len(held)] & (key == k % DOT_FOLDS))
+                   for k in range(n)]
     return [(tr, te) for tr, te in out if tr.any() and te.any()]
+
+
+def fold_description(pts, mode: str, *, diagonal: bool = False) -> str:
+    """One line for the model file: how :func:`row_folds` held rows out of this set."""
+    n = len(row_folds(pts, mode, diagonal=diagonal))
+    n_pos = pts.groupby("sequence")["position"].nunique().min()
+    if mode == "moves" and n_pos >= 2:
+        return f"{n} folds of interior stage positions (each dot's offset from the training positions)"
+    if mode == "moves" or n_pos < PLANES_FOR_PLANE_FOLDS:
+        return f"{n} folds of held-out dots within every position ({n_pos} position(s): too few to hold out)"
+    return f"{n} folds of interior planes crossed with every fifth dot"
 
 
 def dot_folds(pts) -> np.ndarray:
@@ -98,3 +121,38 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
         errs.append(e)
     e = np.vstack(errs)
     return np.sqrt(np.mean(e ** 2, axis=0))
+
+
+def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """Image coordinates ``(m, 4)`` [px] between each dot and its nearest neighbour across the target (in world
+    ``x, y``) at the next depth up (the same dot on the next plane of a Z stack, the neighbouring dot of the
+    other level of a two-level plate): halfway, and for the outermost pair of depths also ``beyond`` of the way
+    past each end (a calibration is used a little past its last plane), and a label ``(m,)`` of each point's
+    level (pair of depths and fraction). Not images of known points (the image of a midpoint is not the midpoint
+    of the images, to second order), but the same inputs for every model: where two models that both fit the
+    calibrated depths disagree there, one of them bends between the depths in a way nothing measured."""
+    w = pts[IMAGE_COLUMNS].to_numpy(float)
+    z = np.round(world[:, 2], 6)
+    levels = np.unique(z)
+    out, labels = [], []
+    for k, (lo, hi) in enumerate(zip(levels[:-1], levels[1:])):
+        a, b = z == lo, z == hi
+        d, j = cKDTree(world[b, :2]).query(world[a, :2])
+        near = d <= 1.5 * np.median(d) + 1e-12
+        wa, wb = w[a][near], w[b][j[near]]
+        ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(levels) - 2 else [])
+        for t in ts:
+            out.append(wa + t * (wb - wa))
+            labels.append(np.full(len(wa), len(labels)))
+    if not out:
+        return np.empty((0, 4)), np.empty(0, int)
+    return np.vstack(out), np.concatenate(labels)
+
+
+def thin_dots(pts, max_rows: int) -> np.ndarray:
+    """A row mask keeping every ``k``-th dot (all its positions), the smallest ``k`` that leaves at most
+    ``max_rows`` rows: a deterministic subsample, spread over the field, for held-out comparisons."""
+    keys = point_keys(pts["row"], pts["col"])
+    _, idx = np.unique(keys, return_inverse=True)
+    k = max(1, int(np.ceil(len(pts) / max_rows)))
+    return (idx.ravel() % k) == 0

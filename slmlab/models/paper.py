@@ -25,8 +25,8 @@ class PaperModel(Model):
 
     Options of :meth:`fit`: ``scale_estimator`` (``'mean-ratio'``, the paper's, or ``'lstsq'``),
     ``distortion_method`` (``'paper-two-step'``, ``'joint'``, or ``None``: the one with the smaller lattice
-    misfit) and ``disparity_method`` (``'joint'``, METHOD.md §2, or ``'single-pass'``, the first reading, for
-    comparison); all three are named in the model file.
+    misfit) and ``disparity_method`` (``'joint'``, our reading of Eqs 13–16, or ``'single-pass'``, a line per dot and
+    then one quadratic, for comparison); all three are named in the model file.
     """
 
     level: ClassVar[int] = 2

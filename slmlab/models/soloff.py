@@ -8,7 +8,7 @@ microscopes, Caron et al., *SoftwareX* 23:101440, 2023):
 
 in world coordinates centred and scaled over the calibration set. The four polynomials (two per camera)
 are fitted by least squares on dots whose world position is known: a Z stack of a plate of known pitch
-(stage ``Z`` plus the plate's lattice), or a known target (stage plus ``x_mm, y_mm, z_mm``, DATA_FORMAT.md).
+(stage ``Z`` plus the plate's lattice), or a known target (stage plus ``x_mm, y_mm, z_mm``; README, "The format").
 The fit goes in the direction in which the errors are: the world positions are exact, the image
 coordinates noisy, so the least-squares fit is unbiased (a map from image to world, fitted the other way,
 regresses on noisy variables).
@@ -32,7 +32,8 @@ import numpy as np
 from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from .base import Model, register
-from .folds import row_folds
+from .direct import DEGREE_ROWS
+from .folds import row_folds, thin_dots
 from .frames import dot_labels, world_positions
 from .reference import quadratic_features
 
@@ -269,7 +270,7 @@ class SoloffModel(Model):
             r = (wT - f) * wt
             step = _solve3(j, r)
             x += step
-            if np.abs(step).max() < tolerance:
+            if not step.size or np.abs(step).max() < tolerance:  # (no point: nothing to solve)
                 break
         return x
 
@@ -338,12 +339,16 @@ def _held_out(pts, world, w, options) -> dict:
     """Held-out RMS [mm] per coordinate of each degree option, on crossed folds of planes and dots
     (:func:`slmlab.models.folds.row_folds`); errors net of one common offset."""
     folds = row_folds(pts, "target")
+    if len(pts) > DEGREE_ROWS:  # the degrees are chosen on every k-th dot: a ranking, not the fit, needs them
+        keep = thin_dots(pts, DEGREE_ROWS)
+        folds = [(tr & keep, te & keep) for tr, te in folds]
+    labels = dot_labels(pts)
     out = {}
     for d in options:
         errs = []
         for train, held in folds:
             try:
-                p = fit_soloff(world[train], w[train], *d, dots=dot_labels(pts)[train])
+                p = fit_soloff(world[train], w[train], *d, dots=labels[train])
             except SlmlabError:
                 errs = None
                 break

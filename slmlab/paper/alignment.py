@@ -1,4 +1,4 @@
-"""Image alignment and disparity distortion correction (paper §4, Eqs 7–16, Table 2, Figs 7–8; METHOD.md §2).
+"""Image alignment and disparity distortion correction (paper §4, Eqs 7–16, Table 2, Figs 7–8).
 
 Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`slmlab.paper.distortion`).
 
@@ -9,13 +9,14 @@ Input: the X, Y, Z sequences of the 7 × 7 plate after §3's correction (:mod:`s
 * **Offset δw2** (Eqs 10–12): the mean of ``w2_l − w2_r`` over all points and positions, per sequence (X, Y, Z),
   then the mean of the three; ``w2_r ← w2_r + δw2``.
 * **Disparity** ``D = w1_r − w1_l``. Along the X sequence (constant Z) it is a parabola in ``w1`` (Fig 7a).
-* **Disparity distortion** (Eqs 13–16; METHOD.md §2, the revised reading): the per-point lines and the
-  quadratic are fitted together, ``D0[i,j,n] = d[i,j] + aD·w1_l² + bD·w1_l`` over the X sequence (one
+* **Disparity distortion** (Eqs 13–16, our reading; README, "The method in our words"): the per-point lines and
+  the quadratic are fitted together, ``D0[i,j,n] = d[i,j] + aD·w1_l² + bD·w1_l`` over the X sequence (one
   constant per grid point, ``aD`` and ``bD`` shared: the identifiable joint fit), and ``cD = bD²/(4·aD)``, so
   that the correction ``D = D0 − (aD·w1_l² + bD·w1_l + cD)`` is a pure parabola about its vertex
   ``w0 = −bD/(2·aD)`` and vanishes there (the paper's Table 2 obeys this to 0.1 %). The sign is checked by its
   effect: the corrected paths must be straight (Fig 8).
-* The first reading, kept for comparison only (``disparity_method="single-pass"``): per grid point a line
+* The single pass, the text's steps taken one after the other, kept for comparison only
+  (``disparity_method="single-pass"``): per grid point a line
   ``D0 ≈ k_D·w1_l + b_D`` along its X path, then one quadratic through all their residuals. The lines absorb
   the straight part of each dot's own stretch of the parabola, so one pass recovers only part of the
   curvature (:func:`recovered_share`).
@@ -37,7 +38,7 @@ __all__ = ["rotate", "path_angles", "estimate_alpha", "estimate_dw2", "Disparity
            "estimate_alignment", "sequence_coordinates", "disparity_table", "recovered_share", "vertex_check"]
 
 MIN_POSITIONS = 3
-#: the disparity estimators: the revised reading of Eqs 13–16 (the default), and the first one (for comparison)
+#: the disparity estimators: our reading of Eqs 13–16, the joint fit (the default), and the single pass (for comparison)
 DISPARITY_METHODS = ("joint", "single-pass")
 
 
@@ -102,7 +103,8 @@ class DisparityCorrection:
     aD, bD, cD_px
         [1/px], [-], [px].
     method
-        ``'joint'`` (METHOD.md §2, the default) or ``'single-pass'`` (the first reading).
+        ``'joint'`` (our reading of Eqs 13–16, the default) or ``'single-pass'`` (a line per dot, then one
+        quadratic through all residuals; for comparison).
     """
 
     aD: float
@@ -126,7 +128,7 @@ def path_straightness(df: pd.DataFrame, disparity: np.ndarray) -> float:
 
 
 def fit_disparity_single_pass(xseq: pd.DataFrame) -> DisparityCorrection:
-    """The first reading of Eqs 13–16 (for comparison only): per-point lines along the X paths, one quadratic
+    """The single pass of Eqs 13–15 (for comparison only): per-point lines along the X paths, one quadratic
     through all their residuals; the sign that straightens the paths is kept. It recovers only part of the
     curvature (:func:`recovered_share`)."""
     d0 = (xseq["wr1"] - xseq["wl1"]).to_numpy()
@@ -145,7 +147,7 @@ def fit_disparity_single_pass(xseq: pd.DataFrame) -> DisparityCorrection:
 
 
 def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
-    """The disparity distortion by METHOD.md §2's reading of Eqs 13–16: the joint fit
+    """The disparity distortion by our reading of Eqs 13–16: the joint fit
     ``D0 = d[i,j] + aD·w1² + bD·w1`` (one constant per grid point, ``aD, bD`` shared), and
     ``cD = bD²/(4·aD)``: the correction vanishes at the parabola's vertex. Of the two signs, the one that
     straightens the paths is kept (it is the fitted one: the joint fit removes the parabola)."""
@@ -174,7 +176,7 @@ def fit_disparity_joint(xseq: pd.DataFrame) -> DisparityCorrection:
 
 
 def recovered_share(xseq: pd.DataFrame) -> dict:
-    """How much of the disparity's curvature one pass recovers (METHOD.md §2): the single pass's ``aD`` over
+    """How much of the disparity's curvature one pass recovers: the single pass's ``aD`` over
     the joint fit's, beside the pooled-regression attenuation ``Var(t²) / (Var(t²) + 4·σm²·σt²)`` for the
     dots' path offsets ``t = w1 − m`` about their path centres ``m`` (pooled over dots), and the ratio of the
     plate's width on the image (the spread of the path centres, ``2·σm``) to a path's length (``2·√3·σt``,
@@ -196,7 +198,8 @@ def recovered_share(xseq: pd.DataFrame) -> dict:
 
 def vertex_check(aD: float, bD: float, cD_px: float) -> dict:
     """``cD`` against ``bD²/(4·aD)``, the value at which the correction vanishes at the parabola's vertex
-    (METHOD.md §2): both, their relative difference and the vertex ``w0 = −bD/(2·aD)`` [px]."""
+    (our reading of Eq 16; the paper's Table 2 obeys it to 0.1 %): both, their relative difference and the vertex
+    ``w0 = −bD/(2·aD)`` [px]."""
     at_vertex = bD * bD / (4 * aD)
     return {"cD_px": cD_px, "bD2_over_4aD_px": at_vertex, "relative_difference": cD_px / at_vertex - 1,
             "vertex_px": -bD / (2 * aD)}
@@ -241,7 +244,7 @@ class AlignmentResult:
                 "cD_px": d.cD_px}
 
     def table(self) -> pd.DataFrame:
-        """Table 2 layout: α, δw2, aD, bD, cD (the joint fit, METHOD.md §2), and the single pass's aD, bD, cD
+        """Table 2 layout: α, δw2, aD, bD, cD (the joint fit of Eqs 13–16), and the single pass's aD, bD, cD
         for comparison."""
         j, p = self.disparity["joint"], self.disparity["single-pass"]
         return pd.DataFrame([
@@ -284,7 +287,7 @@ def estimate_alignment(cal: CalibrationSet, correct, method: str = "joint") -> A
 
 def disparity_table(cal: CalibrationSet, correct, align: AlignmentResult, sequences=("X", "Y")) -> pd.DataFrame:
     """Per sample of the sequences: ``w1_l, w2_l`` [px] of the aligned coordinates, the distorted disparity
-    ``D0`` and the corrected ``D_joint`` (the paper's correction, METHOD.md §2) and ``D_single_pass`` [px]
+    ``D0`` and the corrected ``D_joint`` (Eq 16 with the joint fit's parameters) and ``D_single_pass`` [px]
     (Figs 7–8)."""
     frames = []
     for s in sequences:

@@ -1,4 +1,4 @@
-"""The initial vision model and residual compensation (paper §5.1, §5.3, §5.4, Eqs 17–32; METHOD.md §3, §5).
+"""The initial vision model and residual compensation (paper §5.1, §5.3, §5.4, Eqs 17–32).
 
 The paper's chain, applied to measured image coordinates ``wl1, wl2, wr1, wr2`` [px]:
 
@@ -38,7 +38,7 @@ COMPENSATION_NAMES = ("KYX", "BYX_mm", "KYZ", "BYZ_mm", "KZX", "BZX_mm", "KZY", 
 
 @dataclass
 class PaperParameters:
-    """Every parameter of the paper's chain (names as in DATA_FORMAT.md), with the model level."""
+    """Every parameter of the paper's chain (names as in a model file, README "The format"), with the model level."""
 
     left: ViewCorrection
     right: ViewCorrection
@@ -215,8 +215,8 @@ def fit_paper(cal: CalibrationSet, *, level: int = 2, scale_estimator: str = "me
     distortion_method
         ``'paper-two-step'`` or ``'joint'`` for §3; ``None`` keeps the one with the smaller lattice misfit.
     disparity_method
-        ``'joint'`` (METHOD.md §2's reading of Eqs 13–16: lines and quadratic fitted together, ``cD`` at the
-        vertex; the default) or ``'single-pass'`` (the first reading, per-point lines then one quadratic
+        ``'joint'`` (our reading of Eqs 13–16: lines and quadratic fitted together, ``cD`` at the
+        vertex; the default) or ``'single-pass'`` (per-point lines, then one quadratic
         through their residuals, which recovers only part of the curvature: notebook 03), for comparison.
     """
     if disparity_method not in DISPARITY_METHODS:

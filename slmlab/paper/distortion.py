@@ -1,4 +1,4 @@
-"""Image distortion correction (paper §3, Eqs 1–6, Table 1, Figs 4–6; METHOD.md §1).
+"""Image distortion correction (paper §3, Eqs 1–6, Table 1, Figs 4–6).
 
 Input: one stereo pair of the 27 × 29 plate (the ``grid`` sequence), rows roughly along ``w1``. Per view:
 
@@ -8,7 +8,8 @@ Input: one stereo pair of the 27 × 29 plate (the ``grid`` sequence), rows rough
   fitting error ``E = (k_j·w2' + b_j) − w1'`` of all columns is fitted by one quadratic
   ``E ≈ a·w2'² + b·w2' + c``; then ``w1'' = w1' + a·w2'² + b·w2' + c``, ``w2'' = w2'``.
 
-``Φ = (λ, a, b, c)`` per view. Two estimators (METHOD.md §1 decision):
+``Φ = (λ, a, b, c)`` per view, "estimated by nonlinear optimization" in the paper, which does not say against
+what. Two estimators (our decision; README, "The method in our words"):
 
 ``paper-two-step``
     λ from the row lines: a row ``w2 = k_i·w1 + b_i`` becomes, to first order, a line of slope
@@ -199,25 +200,40 @@ def virtual_line_spacing(i, w1, w2, rows=(1, 2, 3, 4, 5), w1_px=None) -> pd.Data
 
 
 # -------------------------------------------------------------------------------------- display transform
+_DISPLAY_LABELS = {"first": "{across} − {across}[first dot] + {k}·s",
+                   "chord": "{across} − chord + {k}·s",
+                   "levelled": "{across} − {across}[first dot] − tilt·Δ{along} + {k}·s"}
+
+
 def _display(df: pd.DataFrame, line: str, along: str, across: str, spacing_px: float, reference: str):
     df = df.sort_values([line, "col" if line == "row" else "row"])
     g = df.groupby(line)
-    if reference == "first":
+    if reference in ("first", "levelled"):
         base = g[across].transform("first")
+        if reference == "levelled":  # less the view's mean tilt: one rotation of the whole image
+            slopes = [np.polyfit(d[along], d[across], 1)[0] for _, d in g if len(d) >= 2]
+            base = base + (float(np.mean(slopes)) if slopes else 0.0) * (df[along] - g[along].transform("first"))
     elif reference == "chord":  # the straight line through the line's first and last dots
         a0, a1 = g[along].transform("first"), g[along].transform("last")
         b0, b1 = g[across].transform("first"), g[across].transform("last")
         base = b0 + (b1 - b0) * (df[along] - a0) / (a1 - a0).where(a1 != a0, 1.0)
     else:
-        raise ValueError(f"reference must be 'first' or 'chord', not {reference!r}")
-    return df.assign(x=df[along], y=df[across] - base + df[line] * spacing_px)
+        raise ValueError(f"reference must be 'first', 'levelled' or 'chord', not {reference!r}")
+    out = df.assign(x=df[along], y=df[across] - base + df[line] * spacing_px)
+    k = "i" if line == "row" else "j"
+    out.attrs["y_label"] = _DISPLAY_LABELS[reference].format(across=across, along=along, k=k) + " [px]"
+    out.attrs["spacing_px"] = spacing_px
+    return out
 
 
 def display_rows(i, j, w1, w2, spacing_px: float, reference: str = "first") -> pd.DataFrame:
     """Eq 1: each row ``i`` as ``(w1, w2 − w2[i, 1] + i·s)`` (deformations made visible, Fig 4a–b).
 
-    The first dot of the row stands in for ``[i, 1]`` when that one is missing. ``reference='chord'``
-    subtracts the line through the row's end dots instead (shows bending hidden by a tilt)."""
+    The first dot of the row stands in for ``[i, 1]`` when that one is missing. ``reference='levelled'`` also
+    subtracts the view's mean row tilt times ``w1 − w1[i, 1]``: a rotation of the whole image, which is no
+    distortion (§4's α and §5's θX take it up), so that the rows' fan (their tilts differ row by row)
+    shows. ``reference='chord'`` subtracts the line through the row's end dots instead (shows bending hidden
+    by a tilt). The frame's ``attrs['y_label']`` says which."""
     df = pd.DataFrame({"row": i, "col": j, "w1": w1, "w2": w2})[_valid(w1, w2)]
     return _display(df, "row", "w1", "w2", spacing_px, reference)
 
@@ -303,16 +319,21 @@ def estimate_distortion(grid: pd.DataFrame, methods=("paper-two-step", "joint"))
 
 
 def table1(result: DistortionResult, noise_free: DistortionResult | None = None, microscope=None) -> pd.DataFrame:
-    """Table 1: Φ per view, ours (the chosen estimator and the paper's two-step) next to the paper's values,
-    with the estimate on noise-free centres and, from the simulator's optics, the first-order values
-    ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them."""
+    """Table 1: Φ per view with its unit, ours (the chosen estimator and the paper's two-step) next to the
+    paper's values, with the estimate on noise-free centres and, from the simulator's optics, the first-order
+    values ``λ = 2·p1·pixel``, ``a = (p1 + s1)·pixel`` beside them. The paper prints a fifth value per view
+    without a symbol: it is the row ``unlabelled``, the paper's value only."""
     ref = paper_reference("table1")
+    units = {"lambda": "1/px", "a": "1/px", "b": "-", "c": "px", "unlabelled": "?"}
     rows = []
     for side, name in (("l", "left"), ("r", "right")):
-        for par, attr in (("lambda", "lam"), ("a", "a"), ("b", "b"), ("c", "c")):
-            row = {"view": name, "parameter": par, "paper": ref[name][par],
-                   "ours": getattr(result.view(side), attr),
-                   "ours_two_step": getattr(result.estimates["paper-two-step"][side], attr)}
+        for par, attr in (("lambda", "lam"), ("a", "a"), ("b", "b"), ("c", "c"), ("unlabelled", None)):
+            row = {"view": name, "parameter": par, "unit": units[par], "paper": ref[name][par]}
+            if attr is None:
+                rows.append(row)
+                continue
+            row.update({"ours": getattr(result.view(side), attr),
+                        "ours_two_step": getattr(result.estimates["paper-two-step"][side], attr)})
             if noise_free is not None:
                 row["noise_free"] = getattr(noise_free.view(side), attr)
             if microscope is not None:
@@ -325,17 +346,22 @@ def table1(result: DistortionResult, noise_free: DistortionResult | None = None,
     return df
 
 
-def display_frames(grid: pd.DataFrame, result: DistortionResult | None = None, spacing_px: float = 20.0,
-                   column_spacing_px: float = 3.0, column_reference: str = "chord") -> dict:
+def display_frames(grid: pd.DataFrame, result: DistortionResult | None = None, spacing_px: float = 3.0,
+                   column_spacing_px: float = 3.0, row_reference: str = "levelled",
+                   column_reference: str = "chord") -> dict:
     """The display transform of both views' rows and columns (Figs 4 and 6), raw or corrected by
-    ``result``: ``{('rows'|'cols', 'l'|'r'): DataFrame with x, y}``. Columns use their own spacing and,
-    by default, the chord reference: their bend (a pixel or two) is otherwise hidden by the cameras' tilt."""
+    ``result``: ``{('rows'|'cols', 'l'|'r'): DataFrame with x, y}``.
+
+    The rows' fan is a few pixels across the image and each view is rotated by a few tenths of a degree:
+    by default the rows are levelled (each view's mean tilt subtracted, :func:`display_rows`) and stacked
+    3 px apart, so that the fan shows in both views and a corrected view's rows lie flat. The columns'
+    bend (a pixel or two) would be hidden by the same rotation: they take the chord reference."""
     out = {}
     i, j = grid["row"].to_numpy(), grid["col"].to_numpy()
     for side in "lr":
         w1, w2 = grid[f"w{side}1"].to_numpy(float), grid[f"w{side}2"].to_numpy(float)
         if result is not None:
             w1, w2 = result.view(side).apply(w1, w2)
-        out[("rows", side)] = display_rows(i, j, w1, w2, spacing_px)
+        out[("rows", side)] = display_rows(i, j, w1, w2, spacing_px, row_reference)
         out[("cols", side)] = display_columns(i, j, w1, w2, column_spacing_px, column_reference)
     return out

@@ -1,4 +1,4 @@
-"""Residual evaluation of a vision model (paper §5.2–§5.3, Figs 12–17; METHOD.md §4).
+"""Residual evaluation of a vision model (paper §5.2–§5.3, Figs 12–17).
 
 For each axis sequence AXIS ∈ {X, Y, Z}, position ``t ≥ 2`` and grid point: the true displacement
 ``ΔP_A = P_A(t) − P_A(1)`` is the stage's commanded move; the measured one ``ΔP_P = P_P(t) − P_P(1)`` is the
@@ -22,7 +22,7 @@ from .chain import displacements
 __all__ = ["RESIDUAL_INTERVALS_MM", "ELEMENTS", "residuals", "s_coefficients", "requirement", "element_summary",
            "Evaluation", "evaluate"]
 
-#: METHOD.md §4: half-widths of the residual intervals RA1–RA5 [mm]
+#: §5.3: half-widths of the residual intervals RA1–RA5 [mm]
 RESIDUAL_INTERVALS_MM = {"RA1": 0.005, "RA2": 0.0075, "RA3": 0.01, "RA4": 0.0125, "RA5": 0.015}
 ELEMENTS = [a + c for a in "XYZ" for c in "XYZ"]
 REQUIRED_INTERVAL = {"X": "RA3", "Y": "RA3", "Z": "RA5"}

@@ -6,7 +6,7 @@
 * :func:`twin_limit`: what any model could reach on a rig whose only error is the picks' own scatter, by a
   simulated twin of it (the true map known);
 * :func:`charuco_stack`: a ChArUco board Z stack through the virtual microscope, extracted and calibrated;
-* :func:`known_targets`: known 3D targets in one pose, with and without stage moves.
+* :func:`known_targets`: known 3D targets in one pose, with and without stage moves, and the pinhole model on one.
 """
 
 from __future__ import annotations
@@ -188,16 +188,19 @@ def charuco_stack(microscope, board: dict, calibrate_z_mm, check_z_mm, folder: s
 
 def known_targets(microscope, val, *, seed: int = 3) -> pd.DataFrame:
     """Known 3D targets calibrating the default model: a stepped target (five heights over ±1 mm) in one pose,
-    a two-level plate (rows 0.6 mm apart) in one pose, and the stepped target at three stage Z positions; RMS
+    a two-level plate (rows 0.6 mm apart) in one pose, and the stepped target at three stage Z positions; then
+    the pinhole model (OpenCV, from a DLT: :mod:`slmlab.models.pinhole`) on the stepped target in one pose. RMS
     displacement error over the noise floor on the volume run ``val``, per coordinate."""
     lattice = stepped_target(steps_mm=(0.0,))
     cases = {"stepped target, one pose": (stepped_target(), [[0.0, 0.0, 0.0]]),
              "two-level plate, one pose": (lattice.assign(z_mm=np.where(lattice["row"] % 2 == 0, -0.6, 0.0)),
                                            [[0.0, 0.0, 0.0]]),
              "stepped target at 3 stage Z positions": (stepped_target(), [[0.0, 0.0, z] for z in (-0.5, 0.0, 0.5)])}
+    sets = {label: target_set(microscope, target, stage, seed=seed) for label, (target, stage) in cases.items()}
+    runs = [(label, calibrate(cal)) for label, cal in sets.items()]
+    runs.append(("stepped target, one pose (pinhole)", calibrate(sets["stepped target, one pose"], "pinhole")))
     rows = []
-    for label, (target, stage) in cases.items():
-        model = calibrate(target_set(microscope, target, stage, seed=seed))
+    for label, model in runs:
         t = volumetric_comparison({label: model}, val).set_index("model").loc[label]
         rows.append({"calibration": label, "model": model.describe(),
                      **{f"{c}_vs_floor": float(t[f"{c}_vs_floor"]) for c in "XYZ"}})

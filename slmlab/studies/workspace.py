@@ -24,8 +24,9 @@ from ..virtual.simulate import noise_floor, simulate_set
 
 __all__ = ["volume_rows", "volume_run", "volumetric_comparison", "uncertainty_coverage", "volumetric_errors",
            "STAGE_ERRORS", "perfect_stage", "stage_error_budget", "zstack_comparison", "leave_one_plane_out",
-           "workspace_grid", "cross_validation_diff", "subsample_positions", "accuracy_vs_positions",
-           "commanded_frame_limit"]
+           "leave_one_plane_out_summary",
+           "workspace_grid", "cross_validation_diff", "cross_validation_summary", "subsample_positions", "accuracy_vs_positions",
+           "commanded_frame_limit", "reconstruction_against_truth"]
 
 
 def volume_rows(val) -> pd.DataFrame:
@@ -75,18 +76,22 @@ def uncertainty_coverage(model, val, share: float = 95.0, frame: np.ndarray | No
     return {c: float(100 * inside[:, k].mean()) for k, c in enumerate("XYZ")}
 
 
-def volumetric_errors(models: dict, val, frames: dict | None = None) -> dict:
+def volumetric_errors(models: dict, val, frames: dict | None = None, *, floor: bool = True) -> dict:
     """Per sample of V: the stage Z of the position and the displacement error magnitude [µm], per model
-    (``frames``: per model name, a matrix as in :func:`volumetric_comparison`)."""
+    (``frames``: per model name, a matrix as in :func:`volumetric_comparison`), first the noise floor's (the
+    simulator's true-model triangulation of the same centres) where ``floor``."""
     v = volume_rows(val)
     truth0 = val.truth.loc[v.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy()
+    w = v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)
+    recon = {"noise floor (true model)": noise_floor(val)[val.points.index.get_indexer(v.index)]} if floor else {}
+    recon.update({name: m.reconstruct(w) for name, m in models.items()})
     out = {}
-    for name, m in models.items():
+    for name, p in recon.items():
         frame = (frames or {}).get(name)
         truth = truth0 if frame is None else truth0 @ np.asarray(frame).T
-        dt, st, keep = displacements(v, truth)
+        dt, _, keep = displacements(v, truth)
         z = v["stage_z_mm"].to_numpy()[keep]
-        dp, _, _ = displacements(v, m.reconstruct(v[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)))
+        dp, _, _ = displacements(v, p)
         out[name] = pd.DataFrame({"Z_mm": z, "error_um": 1e3 * np.linalg.norm(dp - dt, axis=1)})
     return out
 
@@ -152,8 +157,9 @@ def zstack_comparison(microscope: Microscope, n_volume: int, *, n_planes: int = 
 def leave_one_plane_out(cal, variants: dict[str, dict]) -> pd.DataFrame:
     """Leave-one-plane-out validation of Z-stack calibrations on a set with known X, Y, Z per dot (a real
     Z stack): for each plane, calibrate on the others with each variant's options (``{label: options}``)
-    and reconstruct the left-out plane. Per plane and variant: RMS error [mm] per coordinate, mean predicted
-    1σ [mm], and the share of errors inside the 95 % intervals [%]."""
+    and reconstruct the left-out plane. Per plane and variant: the settings the calibration chose, RMS error
+    [µm] per coordinate (``EX_um`` …), mean predicted 1σ [µm] (``sX_um`` …), and the share of errors inside
+    the 95 % intervals [%]."""
     pts = cal.points.dropna(subset=["wl1", "wl2", "wr1", "wr2"])
     rows = []
     for plane in sorted(pts["position"].unique()):
@@ -168,10 +174,21 @@ def leave_one_plane_out(cal, variants: dict[str, dict]) -> pd.DataFrame:
             sig = model.uncertainty(w) if hasattr(model, "uncertainty") else np.full_like(e, np.nan)
             rows.append({"plane": int(plane), "Z_mm": float(test["stage_z_mm"].iloc[0]), "model": label,
                          "settings": model.describe(),
-                         **{f"E{c}_mm": float(np.sqrt(np.mean(e[:, k] ** 2))) for k, c in enumerate("XYZ")},
-                         **{f"s{c}_mm": float(np.mean(sig[:, k])) for k, c in enumerate("XYZ")},
+                         **{f"E{c}_um": 1e3 * float(np.sqrt(np.mean(e[:, k] ** 2))) for k, c in enumerate("XYZ")},
+                         **{f"s{c}_um": 1e3 * float(np.mean(sig[:, k])) for k, c in enumerate("XYZ")},
                          "inside_95_percent": float(100 * np.mean(np.abs(e) <= 1.959964 * sig))})
     return pd.DataFrame(rows)
+
+
+def leave_one_plane_out_summary(lopo: pd.DataFrame) -> pd.DataFrame:
+    """Per variant of :func:`leave_one_plane_out` (in its order): the RMS over the planes of the left-out
+    errors [µm] per coordinate, the mean predicted 1σ [µm], and the mean share inside the 95 % intervals [%]."""
+    g = lopo.groupby("model", sort=False)
+    out = pd.DataFrame({f"{c}_um": g[f"E{c}_um"].apply(lambda v: float(np.sqrt(np.mean(v ** 2)))) for c in "XYZ"})
+    for c in "XYZ":
+        out[f"{c}_predicted_sigma_um"] = g[f"s{c}_um"].mean()
+    out["inside_95_percent"] = g["inside_95_percent"].mean()
+    return out.reset_index()
 
 
 def workspace_grid(microscope: Microscope, session, *, n_xy: int = 25, depths_mm=(-1.0, 0.0, 1.0),
@@ -208,6 +225,18 @@ def cross_validation_diff(model_a, model_b, grid: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def cross_validation_summary(model_a, model_b, diff: pd.DataFrame) -> pd.DataFrame:
+    """Per coordinate, the RMS over the grid of :func:`cross_validation_diff`'s difference and of its
+    prediction [µm], their ratio, and the settings each calibration chose (where they differ, so do the maps
+    away from the calibration's own positions)."""
+    rows = [{"coordinate": c, "rms_diff_um": float(np.sqrt(np.mean(diff[f"d{c}_um"] ** 2))),
+             "rms_predicted_um": float(np.sqrt(np.mean(diff[f"predicted_{c}_um"] ** 2)))} for c in "XYZ"]
+    out = pd.DataFrame(rows)
+    out["diff_over_predicted"] = out["rms_diff_um"] / out["rms_predicted_um"]
+    out["settings_a"], out["settings_b"] = model_a.describe(), model_b.describe()
+    return out
+
+
 def subsample_positions(cal, every: int):
     """The calibration set with every ``every``-th position of each moving sequence (the first always kept),
     renumbered 1, 2, …; static sequences (``grid``) unchanged."""
@@ -222,8 +251,9 @@ def subsample_positions(cal, every: int):
 def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 3, 4, 6, 8), *, seed: int = 1,
                           models=("direct", "paper-m2")) -> pd.DataFrame:
     """How accuracy scales with the number of calibration positions: Test 1 thinned to every k-th position,
-    each model calibrated on it and validated on one volume run. Per row: positions, model, RMS displacement
-    error [µm] and over the floor per coordinate."""
+    each model calibrated on it and validated on one volume run. Per row: positions, model, the settings it
+    chose (:meth:`slmlab.models.base.Model.describe`: degrees and variables), RMS displacement error [µm] and
+    over the floor per coordinate."""
     full = simulate_set(microscope, paper_test(1), seed=seed)
     val = volume_run(microscope, n_volume, seed)
     rows = []
@@ -231,9 +261,10 @@ def accuracy_vs_positions(microscope: Microscope, n_volume: int, everies=(1, 2, 
         cal = subsample_positions(full, k)
         n = int(cal.points[cal.points["sequence"].isin(["X", "Y", "Z"])].groupby("sequence")["position"].nunique().sum())
         for name in models:
-            t = volumetric_comparison({name: calibrate(cal, name)}, val).set_index("model").loc[name]
-            rows.append({"every": k, "positions": n, "model": name, **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"},
-                         **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"}})
+            model = calibrate(cal, name)
+            t = volumetric_comparison({name: model}, val).set_index("model").loc[name]
+            rows.append({"every": k, "positions": n, "model": name, "settings": model.describe(),
+                         **{f"{c}_um": t[f"{c}_um"] for c in "XYZ"}, **{f"{c}_vs_floor": t[f"{c}_vs_floor"] for c in "XYZ"}})
     return pd.DataFrame(rows)
 
 
@@ -259,3 +290,22 @@ def commanded_frame_limit(microscope: Microscope, session, val, *, repeats: int 
         errors.append(np.mean((dt @ lin[:3] - dt) ** 2, axis=0))
     frame = 1e3 * np.sqrt(np.mean(errors, axis=0))
     return {"frame_um": frame, "floor_um": floor, "attainable_vs_floor": np.sqrt(floor ** 2 + frame ** 2) / floor}
+
+
+def reconstruction_against_truth(reconstructed: pd.DataFrame, truth: pd.DataFrame, share: float = 95.0) -> pd.DataFrame:
+    """Points as ``reconstruct`` writes them (``X_mm, Y_mm, Z_mm`` and the 1σ ``sX_mm, sY_mm, sZ_mm``) against a
+    simulated set's truth (``truth.csv``'s ``X_mm, Y_mm, Z_mm``), matched on ``sequence, position, row, col``.
+    Per coordinate: points, RMS error after one common offset (the model's frame origin) [µm], mean predicted
+    1σ [µm], and the share of errors inside the ``share`` % intervals [%]."""
+    key = ["sequence", "position", "row", "col"]
+    m = reconstructed.dropna(subset=["X_mm", "Y_mm", "Z_mm"]).merge(truth[key + ["X_mm", "Y_mm", "Z_mm"]], on=key,
+                                                                     suffixes=("", "_true"))
+    z = norm.ppf(0.5 + share / 200)
+    rows = []
+    for c in "XYZ":
+        e = (m[f"{c}_mm"] - m[f"{c}_mm_true"]).to_numpy()
+        e = e - e.mean()
+        sig = m[f"s{c}_mm"].to_numpy()
+        rows.append({"coordinate": c, "points": len(m), "rms_error_um": 1e3 * float(np.sqrt(np.mean(e ** 2))),
+                     "mean_sigma_um": 1e3 * float(np.mean(sig)), f"inside_{share:g}_percent": float(100 * np.mean(np.abs(e) <= z * sig))})
+    return pd.DataFrame(rows)

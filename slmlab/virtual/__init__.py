@@ -1,15 +1,20 @@
-"""The virtual CMO stereo microscope: the physics the paper's method is tested against (paper §2, §6).
+"""Virtual instruments with truth: the physics the paper's method, and every model, is tested against.
 
 ``microscope``
-    optics (two central projections through a common main objective, decentred distortion of opposite sign
-    in the two views, perspective), cameras, stage and its errors, plates, the dot finder's noise;
-``presets``, ``sessions``
-    named microscopes (``paper``, ``leica``, ``ideal``) and what a calibration images (Table 3, §6);
+    the CMO stereo microscope (paper §2): two central projections through a common main objective,
+    decentred distortion of opposite sign in the two views, perspective; cameras, stage and its errors,
+    plates, the dot finder's noise;
+``rigs``
+    a zoo of other stereo rigs drawn from physics (a Greenough microscope, a stereo-DIC pair, a stereo-PIV
+    pair behind a wall into water), answering the same questions as the microscope;
+``presets``, ``sessions``, ``designs``
+    named microscopes (``paper``, ``leica``, ``ideal``), what a calibration images (Table 3, §6), and the
+    designs any rig can be calibrated with (Z stacks, stage sequences, known targets);
 ``simulate``, ``render``
     calibration sets with ``truth.csv``, and their images;
 ``derive``
     the ``paper`` preset derived from the paper's Tables 1, 2 and 4 (the one part that uses the paper's
-    method).
+    method); ``rig_checks`` the rigs' physics checked (round trip, focus, Snell against Fermat).
 """
 
 from .microscope import CentroidNoise, Microscope, Optics, Plate, Stage, View

@@ -56,8 +56,8 @@ PRESET_TARGETS = {"aD": 6.5365e-6, "a_abs": (1.73e-6 + 1.54e-6) / 2, "vertex_px"
 
 
 def paper_estimates(microscope: Microscope, seeds=(1, 2, 3)) -> dict:
-    """Mean over Test 1 sets (one per seed) of what the paper's estimators return (the joint disparity fit,
-    METHOD.md §2): the keys of :data:`PRESET_TARGETS`."""
+    """Mean over Test 1 sets (one per seed) of what the paper's estimators return (the disparity by the joint
+    fit of Eqs 13–16): the keys of :data:`PRESET_TARGETS`."""
     acc: dict[str, list] = {k: [] for k in PRESET_TARGETS}
     for s in seeds:
         p, dist, align = fit_paper(simulate_set(microscope, paper_test(1), seed=s))

@@ -15,7 +15,7 @@ Perspective distance
     The ``leica`` preset uses the −1.6 %/mm measured on a real Leica CMO microscope (``L = 62.5 mm``).
 The rest: derived so that the paper's estimators return its tables (:func:`slmlab.virtual.derive.derive_paper_preset`)
     The values below are what a damped fixed-point iteration returns when the paper's estimators (the
-    disparity by METHOD.md §2's joint fit) are run on Test 1 sets of seeds 1–3 and asked to land on Tables 1,
+    disparity by the joint fit of Eqs 13–16) are run on Test 1 sets of seeds 1–3 and asked to land on Tables 1,
     2 and 4 (:data:`slmlab.virtual.derive.PRESET_TARGETS`); ``derive_paper_preset()`` reproduces them in a few seconds. Each
     parameter answers for one estimate, through first-order physics:
 
@@ -24,12 +24,12 @@ The rest: derived so that the paper's estimators return its tables (:func:`slmla
       ``aD = 2 (3 p1 + s1)·pixel``; Table 2's ``aD = 6.54e-6`` and Table 1's ``|a| ≈ 1.64e-6`` give
       ``p1 = 2.72e-4 /mm``, ``s1 = 2.74e-4 /mm``. The row fan that follows, ``λ = 2 p1·pixel = 1.63e-6``,
       was not fitted and matches the paper's left view (1.61e-6; its right view's −9.96e-6 has no single
-      cause in METHOD.md §7 that leaves ``a`` and ``aD`` symmetric: we keep the symmetric physics). A small
+      physical cause we know of that leaves ``a`` and ``aD`` symmetric: we keep the symmetric physics). A small
       radial term (0.3 px at the corners) is common to both sub-systems.
     * Objective axis (Table 2): the fitted parabola's vertex ``−bD/(2aD)`` = 941 px puts the axis at
       ``w1`` ≈ 1021 px, near the image centre: the right view's 0.1 % larger magnification adds a linear
       disparity trend along ``w1`` that moves the vertex 80 px from the axis. With ``cD = bD²/(4aD)``
-      (METHOD.md §2) ``cD`` follows.
+      (Eq 16, our reading) ``cD`` follows.
     * Cameras (Table 2): the paper measures ``α`` and ``δw2`` *after* §3's correction, which is applied
       about the image's top-left origin (``w2·(1 + λ w1)`` adds a path slope ``λ·w2``, opposite in the two
       views). Camera rotations of ∓0.1516° and a right principal point 3.8 px lower make the estimators
@@ -43,7 +43,7 @@ The rest: derived so that the paper's estimators return its tables (:func:`slmla
       returns −0.0083 (the optics), and the stage's tilt (``y_tilt = 0.0132``) supplies the rest. A small
       X-axis tilt (0.0003) that no paper term models. Scale
       errors of 1e-4, a 0.3 µm periodic lead error (1 mm lead), 0.3 µm straightness and 0.3 µm positioning
-      noise are typical of a good micrometre stage (METHOD.md §7: 0.1–2 µm).
+      noise are typical of a good micrometre stage (0.1–2 µm).
 Dot finder
     0.02 px in focus rising to 0.05 px at the edge of the ±1.13 mm depth of field.
 """

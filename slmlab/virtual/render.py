@@ -40,7 +40,7 @@ __all__ = ["dot_footprints", "render_view", "render_pair", "render_set", "render
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
-    """File name of one image in ``images/`` (DATA_FORMAT.md)."""
+    """File name of one image in ``images/``: ``{sequence}_{position:03d}_{l|r}.png`` (README, "The format")."""
     return f"{sequence}_{position:03d}_{side}.png"
 
 
@@ -318,7 +318,7 @@ def render_board_set(out_dir: str | Path, microscope: Microscope, board: dict, s
                      tilt_deg=(0.0, 0.0), texture_px_per_mm: float = 1000.0) -> Path:
     """A Z stack of a ChArUco board through the virtual microscope, written as a set to extract: PNG pairs in
     ``images/``, ``stage.csv`` naming them, ``meta.json`` (``pattern: charuco``) and ``truth.csv`` (every
-    corner's true image centres and its stage-frame position, DATA_FORMAT.md).
+    corner's true image centres and its stage-frame position, as a simulated set's ``truth.csv``).
 
     ``board``: ``squares [x, y]``, ``square_mm``, ``marker_mm``, ``dictionary``, ``legacy`` (OpenCV's). The
     board's centre is at the middle of the field, in focus, at stage zero; each position moves the stage

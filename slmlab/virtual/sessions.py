@@ -64,7 +64,7 @@ class Session:
         """Commanded stage positions ``(n, 3)`` [mm] of each sequence.
 
         X runs from 0 to ``-(NUMX-1)·sd``, Y from 0 to ``+(NUMY-1)·sd``, Z from 0 to ``-(NUMZ-1)·sd``
-        (METHOD.md §6: X in [−4.1, 0], Y in [0, 2.9], Z in [−2.25, 0]); the other two coordinates sit at the
+        (paper §6.2: X in [−4.1, 0], Y in [0, 2.9], Z in [−2.25, 0]); the other two coordinates sit at the
         middle of their ranges.
         """
         c = self.centre_mm()

@@ -13,10 +13,11 @@ import numpy as np
 import pandas as pd
 
 from ..errors import SlmlabError
-from ..io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TRUTH_COLUMNS, CalibrationSet
+from ..io import IMAGE_COLUMNS, POINT_COLUMNS, SET_FORMAT, TARGET_COLUMNS, TRUTH_COLUMNS, CalibrationSet
 from ..version import __version__
-from .microscope import Microscope, from_dict
+from .microscope import Microscope
 from .presets import preset
+from .rigs import rig_from_dict
 from .sessions import Session, paper_test, tilt_matrix
 
 __all__ = ["stage_origin", "fabricated_plates", "observe", "simulate_set", "noise_floor", "stepped_target",
@@ -127,7 +128,7 @@ def _set_meta(microscope: Microscope, session: Session, seed: int, origin: np.nd
         "format": SET_FORMAT,
         "image_size_px": list(microscope.image_size_px),
         "plates": {"grid": microscope.grid_plate.as_meta(), "moving": microscope.moving_plate.as_meta()},
-        "source": f"slmlab {__version__} virtual CMO microscope, preset {microscope.preset}, "
+        "source": f"slmlab {__version__} virtual {getattr(microscope, 'kind', 'CMO microscope')}, preset {microscope.preset}, "
                   f"session {session.name}, seed {seed}",
         "simulator": {
             "microscope": microscope.as_dict(),
@@ -144,7 +145,7 @@ def noise_floor(cal: CalibrationSet) -> np.ndarray:
     """The simulator's own true-model triangulation of a simulated set's noisy centres, in the stage frame
     ``(n, 3)`` [mm] (NaN where a dot is missing): what no calibrated model can beat."""
     sim = cal.meta["simulator"]
-    m = from_dict(sim["microscope"])
+    m = rig_from_dict(sim["microscope"])
     w = cal.points[IMAGE_COLUMNS].to_numpy(float)
     out = np.full((len(w), 3), np.nan)
     ok = np.isfinite(w).all(axis=1)
@@ -158,7 +159,7 @@ def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_
     ``len(steps_mm)`` heights ``steps_mm`` [mm] in a knight's-move pattern (step ``(row + 2·col) mod n``),
     so that height does not follow ``x`` or ``y`` (a staircase across the field would confound them, and
     one pose could not tell depth from position). Returns ``row, col, x_mm, y_mm, z_mm`` in the target's
-    frame (the plate convention of DATA_FORMAT.md for ``x, y``)."""
+    frame (the plate convention of README, "The format", for ``x, y``)."""
     i, j = np.meshgrid(np.arange(1, rows + 1), np.arange(1, cols + 1), indexing="ij")
     i, j = i.ravel(), j.ravel()
     band = (i + 2 * j) % len(steps_mm)
@@ -167,16 +168,20 @@ def stepped_target(rows: int = 31, cols: int = 31, pitch_mm: float = 0.2, steps_
 
 
 def target_set(microscope: Microscope, target: "pd.DataFrame", stage_mm, *, seed: int = 0, sequence: str = "K",
-               dot_diameter_mm: float = 0.1) -> CalibrationSet:
-    """A known-target calibration set (DATA_FORMAT.md): the dots of ``target`` (``row, col, x_mm, y_mm, z_mm``
-    in the target's frame, its axes along the stage's) imaged at the commanded stage positions ``stage_mm``
-    ``(k, 3)`` [mm] (one row for a single pose), with the stage's errors and the dot finder's noise; the
-    target's origin is at the field's centre, in focus, at stage zero. ``truth`` holds the true centres and
-    stage-frame positions."""
+               dot_diameter_mm: float = 0.1, plate: dict | None = None, origin_mm=None) -> CalibrationSet:
+    """A known-target calibration set (README, "The format"): the dots of ``target`` (``row, col, x_mm, y_mm,
+    z_mm`` in the target's frame, its axes along the stage's; other columns, such as a two-level plate's
+    ``level``, pass through to ``points.csv``) imaged at the commanded stage positions ``stage_mm`` ``(k, 3)``
+    [mm] (one row for a single pose), with the stage's errors and the dot finder's noise. The target's origin
+    is at stage zero, placed at ``origin_mm`` (default: the field's centre, in focus, as a session centred
+    there places it); ``dot_diameter_mm`` sets the visibility margin, ``plate`` the ``meta.json`` entry
+    (default: the pitch and the dot diameter). ``truth`` holds the true centres and stage-frame positions."""
     stage_mm = np.atleast_2d(np.asarray(stage_mm, float))
     stage_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 5]).spawn(2))
-    origin = stage_origin(microscope, Session(positions=(0, 0, 0), grid=False))
-    local = target[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    origin = (stage_origin(microscope, Session(positions=(0, 0, 0), grid=False)) if origin_mm is None
+              else np.asarray(origin_mm, float))
+    local = target[TARGET_COLUMNS].to_numpy(float)
+    extra = [c for c in target.columns if c not in ("row", "col", *TARGET_COLUMNS)]
     frames, truths = [], []
     actual = microscope.stage.actual(stage_mm, stage_rng)
     for k, (cmd, act) in enumerate(zip(stage_mm, actual), 1):
@@ -186,13 +191,17 @@ def target_set(microscope: Microscope, target: "pd.DataFrame", stage_mm, *, seed
         key = {"sequence": sequence, "position": k, "row": target["row"].to_numpy(), "col": target["col"].to_numpy()}
         frames.append(pd.DataFrame({**key, "stage_x_mm": cmd[0], "stage_y_mm": cmd[1], "stage_z_mm": cmd[2],
                                     **{c: w[:, n] for n, c in enumerate(IMAGE_COLUMNS)},
-                                    "x_mm": local[:, 0], "y_mm": local[:, 1], "z_mm": local[:, 2]}))
+                                    **{c: local[:, n] for n, c in enumerate(TARGET_COLUMNS)},
+                                    **{c: target[c].to_numpy() for c in extra}}))
         truths.append(pd.DataFrame({**key, **{c: w_true[:, n] for n, c in enumerate(IMAGE_COLUMNS)},
                                     "X_mm": world[:, 0], "Y_mm": world[:, 1], "Z_mm": world[:, 2]}))
-    points = pd.concat(frames, ignore_index=True)[[*POINT_COLUMNS, "x_mm", "y_mm", "z_mm"]]
-    plate = {"pitch_mm": float(abs(np.diff(np.unique(local[:, 0]))).min()), "dot_diameter_mm": dot_diameter_mm}
+    points = pd.concat(frames, ignore_index=True)[[*POINT_COLUMNS, *TARGET_COLUMNS, *extra]]
+    if plate is None:
+        xs = np.unique(local[:, 0])
+        plate = {"pitch_mm": float(abs(np.diff(xs)).min()) if len(xs) > 1 else 1.0, "dot_diameter_mm": dot_diameter_mm}
     meta = {"format": SET_FORMAT, "image_size_px": list(microscope.image_size_px), "plates": {"moving": plate},
-            "source": f"slmlab {__version__} virtual microscope, preset {microscope.preset}: a known target, seed {seed}",
+            "source": f"slmlab {__version__} virtual {getattr(microscope, 'kind', 'microscope')}, preset "
+                      f"{microscope.preset}: a known target, seed {seed}",
             "simulator": {"microscope": microscope.as_dict(), "seed": int(seed),
                           "stage_origin_mm": [float(v) for v in origin]}}
     return CalibrationSet(points=points, meta=meta, truth=pd.concat(truths, ignore_index=True)[TRUTH_COLUMNS])

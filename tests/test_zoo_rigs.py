@@ -1,0 +1,52 @@
+"""Rigs drawn at random from the zoo (hypothesis): a Greenough microscope, a stereo-DIC or a stereo-PIV pair with
+every physical parameter drawn within its range, imaged by any design and damaged like a real session; every verb
+through the command line either succeeds with finite outputs or exits 2 with one line that says what to do."""
+
+import json
+import warnings
+
+import numpy as np
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
+
+import slmlab
+from slmlab.virtual.designs import DESIGNS
+from slmlab.virtual.rigs import RIG_CLASSES
+from test_random_rigs import CORRUPTIONS, _numbers, check, corrupt, run
+
+MODELS = ("auto", "direct", "soloff", "polynomial")
+
+
+@settings(max_examples=max(8, settings.default.max_examples // 5))
+@given(kind=st.sampled_from(sorted(RIG_CLASSES)), rig_seed=st.integers(0, 2 ** 16), design=st.sampled_from(sorted(DESIGNS)),
+       how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
+def test_any_zoo_rig_and_design_through_every_verb(kind, rig_seed, design, how, seed, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("zoo")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        made = folder / "made"
+        code, stderr = run("simulate", made, "--rig", f"{kind}:{rig_seed}", "--design", design, "--seed", seed)
+        if code != 0:  # a drawn rig whose plate does not fit its field, say: one line that says what to do
+            assert code == 2 and stderr.startswith("slmlab: error: ") and stderr.count("\n") == 1, stderr
+            event("simulate: exit 2")
+            return
+        cal = slmlab.read_set(made)
+        damaged = corrupt(cal.points, how, np.random.default_rng(seed))
+        if damaged.empty:
+            return
+        d = slmlab.write_set(folder / "set", slmlab.CalibrationSet(damaged, cal.meta))
+        pts = folder / "points.csv"
+        damaged[["wl1", "wl2", "wr1", "wr2"]].dropna().head(50).to_csv(pts, index=False)
+        for model in MODELS:
+            out = folder / f"{model}.json"
+            if not check(*run("calibrate", d, "--model", model, "--out", out), d):
+                assert not out.exists()
+                event(f"{model}: exit 2")
+                continue
+            event(f"{model}: calibrated")
+            assert all(np.isfinite(v).all() for v in _numbers(json.loads(out.read_text())["parameters"])), model
+            rec = folder / f"{model}.csv"
+            if check(*run("reconstruct", out, pts, "--out", rec), pts):
+                xyz = np.loadtxt(rec, delimiter=",", skiprows=1, usecols=range(4, 7), ndmin=2)
+                assert np.isfinite(xyz).all(), model
+            check(*run("evaluate", out, d), d)
