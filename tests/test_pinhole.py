@@ -51,6 +51,7 @@ def test_the_paper_finding_holds_for_x_motion_in_depth(small_sets):
     assert p.loc["XZ", "rms_mm"] > 3 * q.loc["XZ", "rms_mm"]
 
 
+@pytest.mark.slow  # two pinhole calibrations (seconds each)
 def test_a_rigid_stage_map_cannot_absorb_the_depth_scale_but_reads_a_mirror_image_the_right_way_round(small_sets):
     """The virtual microscope's image is a mirror image of the stage (its axes run along +x, +y seen from
     above), so the rigid camera-to-stage map is a reflection; a rotation forced on it read Y backwards (YY
@@ -113,6 +114,7 @@ def stepped():
         slmlab.simulate_set(m, volume_session(12, seed=5), seed=7)
 
 
+@pytest.mark.slow  # pinhole calibrations (seconds each)
 def test_pinhole_calibrates_a_one_pose_stepped_target_to_the_floor(stepped, tmp_path):
     _, cal, val = stepped
     d = slmlab.write_set(tmp_path / "set", cal)
