@@ -41,6 +41,13 @@ def set_dir(tmp_path, paper_set):
     return slmlab.write_set(tmp_path / "set", paper_set)
 
 
+def pytest_collection_modifyitems(config, items):
+    """The slow tests first, each group in its own order: on several workers (make test) the long ones (the
+    notebooks, the property tests) start early and the short ones fill in at the end, so that no worker is left
+    running a long test while the others idle."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 # property-based tests (hypothesis). Profiles, chosen by SLMLAB_HYPOTHESIS_PROFILE:
 #   quick     the default (make test, CI or not): 40 examples per test, derandomised, the same ones every run
 #   thorough  make test-thorough: 300 examples per test, new ones each run (failures are replayed from .hypothesis/)
