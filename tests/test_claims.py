@@ -64,6 +64,17 @@ def test_a_missing_table_or_row_is_named(demo, tmp_path):
         Tables(demo([("floor", 0.004)])).value("ext99_demo", "rms_um", model="floor")
 
 
+def test_a_row_looked_up_by_hand_that_is_missing_names_the_table(demo, monkeypatch):
+    def by_hand(t: Tables, size: str) -> None:
+        rms = t("ext99_demo").set_index("model")["rms_mm"]
+        claim(rms["soloff"] < 0.01, "ext99_demo", "soloff", "soloff under 0.01 mm")
+
+    monkeypatch.setitem(sys.modules, "claims.nb99", types.SimpleNamespace(check=by_hand))
+    folder = demo([("floor", 0.004), ("direct", 0.0045)])
+    with pytest.raises(AssertionError, match=r"notebook 99's claims could not be read from table ext99_demo in .*KeyError: 'soloff'"):
+        claims.check("99", folder, "full")
+
+
 def test_a_notebook_without_claims_checks_nothing(tmp_path):
     assert "99" not in claims.notebooks_with_claims()
     claims.check("99", tmp_path, "small")  # no tables there, and no claims module: nothing to hold
