@@ -41,6 +41,16 @@ def set_dir(tmp_path, paper_set):
     return slmlab.write_set(tmp_path / "set", paper_set)
 
 
+def pytest_configure(config):
+    """On a pytest-xdist worker (make test: one per core), OpenCV and OpenBLAS on one thread, as calibrate
+    already runs: their thread pools would only compete with the other workers (5-7 % of the CPU time of the
+    in-process tests on two cores). Subprocesses (the command line, the notebooks' kernels) keep the defaults."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        from slmlab.models.base import one_thread
+
+        one_thread().__enter__()  # for the worker's whole life
+
+
 def pytest_collection_modifyitems(config, items):
     """The slow tests first, each group in its own order: on several workers (make test) the long ones (the
     notebooks, the property tests) start early and the short ones fill in at the end, so that no worker is left
