@@ -68,6 +68,7 @@ def _dismiss_dialogs(page) -> list[str]:
     return texts
 
 
+@pytest.mark.slow
 @pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (Debian package 'chromium'); .ci/run installs it")
 def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_path):

@@ -75,6 +75,7 @@ def test_outliers_are_down_weighted_and_reported(volume):
     assert len(flagged) >= 0.9 * len(bad)
 
 
+@pytest.mark.slow  # calibrate and reconstruct on the command line
 def test_reconstruct_adds_uncertainty_columns(tmp_path, volume):
     cal, val = volume
     d = slmlab.write_set(tmp_path / "cal", cal)
@@ -95,6 +96,7 @@ def test_uncertainty_intervals_hold_what_they_promise_on_a_perfect_stage(volume)
     assert all(abs(coverage[c] - 95) <= 2 for c in "XYZ"), coverage
 
 
+@pytest.mark.slow  # two calibrations and their difference over the workspace
 def test_independent_calibrations_differ_about_as_much_as_predicted():
     m = perfect_stage()
     a, b = (slmlab.calibrate(slmlab.simulate_set(m, slmlab.paper_test(2), seed=s)) for s in (11, 12))
@@ -136,6 +138,7 @@ def zstack():
     return cal, val, zstack_frame(mz)
 
 
+@pytest.mark.slow  # the default's selection on a z stack, against the floor over a volume
 def test_a_z_stack_alone_calibrates_to_the_noise_floor(zstack):
     cal, val, frame = zstack
     assert set(cal.points["sequence"]) == {"Z"}
@@ -219,6 +222,7 @@ def test_the_grid_plate_measures_the_stages_scale_error():
     assert t.loc["plate", "X_vs_floor"] < 1.2 < t.loc["stage", "X_vs_floor"], t
 
 
+@pytest.mark.slow  # four command-line calibrations
 def test_calibrate_takes_model_options_on_the_command_line(tmp_path, volume):
     cal, _ = volume
     d = slmlab.write_set(tmp_path / "cal", cal)

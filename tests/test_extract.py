@@ -26,6 +26,8 @@ def rendered_set(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow  # the rendered Test 5 set: simulate --images and extract
+@pytest.mark.xdist_group("rendered_set")
 def test_extraction_meets_the_accuracy_targets(rendered_set):
     cal = slmlab.read_set(rendered_set)
     s = extraction_summary(extraction_errors(cal.points, cal))
@@ -35,6 +37,8 @@ def test_extraction_meets_the_accuracy_targets(rendered_set):
     assert s["rms_depth_of_field_px"] <= 0.05
 
 
+@pytest.mark.slow  # the rendered Test 5 set: simulate --images and extract
+@pytest.mark.xdist_group("rendered_set")
 def test_rendered_images_are_byte_identical_for_a_seed(rendered_set, tmp_path):
     cal = slmlab.simulate_set(slmlab.preset("paper"), slmlab.paper_test(5), seed=4)
     from slmlab.virtual.render import render_set
@@ -126,6 +130,8 @@ def test_unreadable_and_truncated_images(tmp_path):
         read_image(bad)
 
 
+@pytest.mark.slow  # the rendered Test 5 set: simulate --images and extract
+@pytest.mark.xdist_group("rendered_set")
 def test_images_of_different_sizes_are_refused(rendered_set, tmp_path):
     import shutil
 
@@ -137,6 +143,7 @@ def test_images_of_different_sizes_are_refused(rendered_set, tmp_path):
     assert r.returncode == 2 and "one size" in r.stderr and r.stderr.count("\n") == 1
 
 
+@pytest.mark.slow  # extracts the 14 DICe image pairs
 def test_real_dot_target_pairs_are_found_and_indexed_consistently(dataset_folder):
     counts = []
     for left in sorted((dataset_folder("dice-calb-sys2") / "images").glob("*_0.jpeg")):

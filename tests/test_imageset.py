@@ -192,6 +192,7 @@ def test_case_e_without_markers_in_one_image_is_tracked_from_its_neighbours(case
 
 
 # ----------------------------------------------------------------------------------- other real samples
+@pytest.mark.slow  # extracts the 14 DICe image pairs
 def test_dice_dot_target_pairs_through_extract(tmp_path, dataset_folder):
     pts, notes = extract_set(converters.dice_image_set(dataset_folder("dice-calb-sys2"), tmp_path / "dice"), progress=False)
     assert pts["position"].nunique() == 14 and any("donut" in n for n in notes)
@@ -208,6 +209,7 @@ def test_opencv_chessboard_pairs_through_extract(tmp_path, dataset_folder):
     assert len(counts) == 13 and (counts == 54).all()
 
 
+@pytest.mark.slow  # renders and calibrates a ChArUco stack
 def test_a_virtual_charuco_stack_is_found_numbered_and_calibrates_to_the_floor(tmp_path):
     m = workspace.perfect_stage(slmlab.preset("paper"))
     board = {"squares": [16, 12], "square_mm": 0.3, "marker_mm": 0.22, "dictionary": "DICT_6X6_250", "legacy": True}

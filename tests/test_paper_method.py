@@ -180,6 +180,7 @@ def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "slmlab", *args], capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # three command-line runs
 def test_cli_calibrate_reconstruct_evaluate(tmp_path, set_dir):
     model = tmp_path / "m2.json"
     assert run_cli("calibrate", str(set_dir), "--model", "paper-m2", "--out", str(model)).returncode == 0

@@ -31,6 +31,7 @@ def test_pinhole_model_file_round_trip_and_reports(small_sets, tmp_path):
     np.testing.assert_allclose(back.reconstruct(w), m.reconstruct(w), atol=1e-9)
 
 
+@pytest.mark.slow  # calibrates every pinhole variant
 def test_variant_is_chosen_on_held_back_positions(small_sets):
     cal, _ = small_sets
     m = slmlab.calibrate(cal, "pinhole", views_from=("X", "Y", "Z"))
@@ -50,6 +51,7 @@ def test_the_paper_finding_holds_for_x_motion_in_depth(small_sets):
     assert p.loc["XZ", "rms_mm"] > 3 * q.loc["XZ", "rms_mm"]
 
 
+@pytest.mark.slow  # two pinhole calibrations (seconds each)
 def test_a_rigid_stage_map_cannot_absorb_the_depth_scale_but_reads_a_mirror_image_the_right_way_round(small_sets):
     """The virtual microscope's image is a mirror image of the stage (its axes run along +x, +y seen from
     above), so the rigid camera-to-stage map is a reflection; a rotation forced on it read Y backwards (YY
@@ -89,6 +91,7 @@ def test_real_chessboard_stereo_rms_is_well_under_a_pixel(dataset_folder):
     assert calibrate_stereo(views, size, "standard", f_guess_px=size[0]).rms_px < 0.6
 
 
+@pytest.mark.slow  # extracts the 14 DICe image pairs
 def test_real_dot_target_stereo_rms_is_well_under_a_pixel(dataset_folder):
     from slmlab.images.extract import extract_stereo_pairs
 
@@ -111,6 +114,7 @@ def stepped():
         slmlab.simulate_set(m, volume_session(12, seed=5), seed=7)
 
 
+@pytest.mark.slow  # pinhole calibrations (seconds each)
 def test_pinhole_calibrates_a_one_pose_stepped_target_to_the_floor(stepped, tmp_path):
     _, cal, val = stepped
     d = slmlab.write_set(tmp_path / "set", cal)

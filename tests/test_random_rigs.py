@@ -167,6 +167,7 @@ def damaged_set(m, session, how, seed, folder):
     return cal, slmlab.write_set(folder / "set", cal)
 
 
+@pytest.mark.slow  # property test: every verb on each drawn rig
 @given(rig=rigs(), how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
 @example(rig=ISSUE25, how="none", seed=0)
 @example(rig=NEAR_EMPTY, how="missing rows", seed=1)
@@ -202,6 +203,7 @@ def every_model_through_every_verb(points, d, folder, models) -> None:
         check(*run("evaluate", out, d), d)
 
 
+@pytest.mark.slow  # property test: the pinhole model on each drawn rig
 @settings(max_examples=max(10, settings.default.max_examples // 5))
 @given(rig=rigs(), how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))
 @example(rig=ISSUE25, how="none", seed=0)
@@ -247,6 +249,7 @@ def _numbers(obj):
 IMAGE_DAMAGE = ("none", "none", "none", "blank image", "truncated image", "other size", "missing image")
 
 
+@pytest.mark.slow  # property test: rendered, damaged and extracted images of each drawn rig
 @given(m=microscopes(), data=st.data(), damage=st.sampled_from(IMAGE_DAMAGE), tiff=st.booleans(),
        bright=st.booleans(), seed=st.integers(0, 2 ** 16))
 def test_extract_succeeds_or_says_what_to_do(m, data, damage, tiff, bright, seed, tmp_path_factory):

@@ -97,6 +97,7 @@ def test_calibrate_bad_input(case, work, tmp_path):
     assert not (tmp_path / "m.json").exists()
 
 
+@pytest.mark.slow  # three command-line runs
 def test_calibrate_unknown_model_and_missing_folder(work, tmp_path):
     assert_user_error(cli("calibrate", work, "--model", "nope", "--out", tmp_path / "m.json"), "unknown model")
     assert_user_error(cli("calibrate", work, "--out", tmp_path / "no" / "m.json"), "does not exist")
@@ -114,6 +115,7 @@ def test_a_failed_calibration_never_replaces_a_good_model(work, tmp_path, model_
 
 
 # ------------------------------------------------------------------------------------------ other verbs
+@pytest.mark.slow  # six command-line runs
 def test_reconstruct_bad_input(tmp_path, model_file, small_set):
     pts = tmp_path / "pts.csv"
     pts.write_text("wl1,wl2,wr1\n1,2,3\n")
@@ -137,6 +139,7 @@ def test_evaluate_bad_input(tmp_path, model_file, work):
     assert_user_error(cli("evaluate", tmp_path / "none.json", work), "model file not found")
 
 
+@pytest.mark.slow  # four command-line runs
 def test_simulate_and_extract_bad_input(tmp_path, work):
     f = tmp_path / "file"
     f.write_text("x")
@@ -203,6 +206,7 @@ def zstack_set(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow  # two command-line calibrations per model
 @pytest.mark.parametrize("model", sorted(slmlab.available_models()))
 def test_every_model_file_is_byte_identical_whatever_the_threads(model, tmp_path, small_set, zstack_set):
     """One set, one model file: calibrated twice, the second time as on a machine with another number of
@@ -217,6 +221,7 @@ def test_every_model_file_is_byte_identical_whatever_the_threads(model, tmp_path
     assert a.read_bytes() == b.read_bytes()
 
 
+@pytest.mark.slow  # runs notebook 01 twice
 def test_a_notebook_writes_identical_figures_twice(tmp_path):
     from slmlab.run_notebooks import run_notebook
 

@@ -92,6 +92,7 @@ def test_cli_simulate_validation_and_other_tests(tmp_path):
     assert slmlab.read_set(tmp_path / "t5").points.groupby("sequence")["position"].nunique()["X"] == 9
 
 
+@pytest.mark.slow  # three command-line runs
 def test_unknown_preset_and_bad_test_are_user_errors(tmp_path):
     r = run_cli("simulate", str(tmp_path / "x"), "--preset", "nope")
     assert r.returncode == 2 and "unknown preset" in r.stderr and r.stderr.count("\n") == 1

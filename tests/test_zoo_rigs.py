@@ -5,6 +5,7 @@ through the command line either succeeds with finite outputs or exits 2 with one
 import warnings
 
 import numpy as np
+import pytest
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
@@ -16,6 +17,7 @@ from test_random_rigs import CORRUPTIONS, corrupt, every_model_through_every_ver
 MODELS = ("auto", "direct", "soloff", "polynomial")
 
 
+@pytest.mark.slow  # property test: every verb on each drawn zoo rig
 @settings(max_examples=max(8, settings.default.max_examples // 5))
 @given(kind=st.sampled_from(sorted(RIG_CLASSES)), rig_seed=st.integers(0, 2 ** 16), design=st.sampled_from(sorted(DESIGNS)),
        how=st.sampled_from(CORRUPTIONS), seed=st.integers(0, 2 ** 16))

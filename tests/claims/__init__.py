@@ -7,8 +7,10 @@ holding fails with the table and the row named. ``size`` is ``"small"`` (the not
 ``make test``) or ``"full"`` (the committed ``figures/`` of ``make reproduce``); a claim whose number depends
 on the size asserts what is true at that size.
 
-The checks run twice: after each notebook's small run (``tests/test_notebooks.py``) and on the committed
-``figures/`` (``tests/test_claims.py``).
+A row or a column looked up by hand (``t(name).set_index(...).loc[...]``) that is not there fails as a claim
+too, naming the table read last. The checks run twice: after each notebook's small run
+(``tests/test_notebooks.py``) and on the committed ``figures/`` (``tests/test_claims.py``); they read only, so
+they run on any number of pytest-xdist workers.
 """
 
 from __future__ import annotations
@@ -26,8 +28,10 @@ class Tables:
 
     def __init__(self, folder: str | Path):
         self.folder = Path(folder)
+        self.last = None  # the table read last: named when a claim fails other than through claim()
 
     def __call__(self, name: str) -> pd.DataFrame:
+        self.last = name
         path = self.folder / f"{name}.csv"
         assert path.exists(), f"table {name} was not written (looked for {path})"
         return pd.read_csv(path)
@@ -63,4 +67,9 @@ def check(number: str, folder: str | Path, size: str) -> None:
     """Run notebook ``number``'s claims on the tables in ``folder`` (written at ``size``)."""
     if number not in notebooks_with_claims():
         return
-    importlib.import_module(f"claims.nb{number}").check(Tables(folder), size)
+    tables = Tables(folder)
+    try:
+        importlib.import_module(f"claims.nb{number}").check(tables, size)
+    except (KeyError, IndexError, ValueError, TypeError) as exc:  # a row or column looked up by hand is missing
+        raise AssertionError(f"notebook {number}'s claims could not be read from table {tables.last} in {folder}: "
+                             f"{type(exc).__name__}: {exc}") from exc
