@@ -31,7 +31,7 @@ data: $(STAMP)
 reproduce: $(STAMP)
 	$(PY) -m slmlab data fetch
 	rm -rf .figures.new && mkdir .figures.new
-	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/.figures.new $(PY) -m slmlab.run_notebooks --timing .reproduce_seconds --jobs 2 notebooks/*.ipynb
+	SLMLAB_SIZE=full SLMLAB_FIGURES=$(CURDIR)/.figures.new $(PY) -m slmlab.run_notebooks --timing .reproduce_seconds --durations .notebook_seconds.json --jobs 2 notebooks/*.ipynb
 	find figures -maxdepth 1 -type f ! -name table6_speed.md -delete
 	mv .figures.new/* figures/ && rmdir .figures.new
 	$(PY) -m slmlab bench --markdown figures/table6_speed.md --reproduce-seconds-file .reproduce_seconds

@@ -1,19 +1,24 @@
 """Execute the notebooks top to bottom, each in a fresh kernel (nbclient): ``make reproduce`` and the tests.
 
 ``python -m slmlab.run_notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
-with the working directory set to the notebook's folder, and fails (exit 1) if one raises. Outputs are not written back:
+with the working directory set to the notebook's folder, and fails (exit 1) if one raises. With
+``--durations FILE`` (JSON, notebook name to seconds) the notebooks that took longest last time start first, and
+the file is updated: two at a time, starting the longest last would leave one core idle at the end. Outputs are not written back:
 notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-__all__ = ["run_notebook", "main", "THREAD_VARIABLES"]
+from .io import atomic_write_text
+
+__all__ = ["run_notebook", "longest_first", "main", "THREAD_VARIABLES"]
 
 #: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL), set to 1 unless given
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -44,20 +49,32 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
                 os.environ[k] = v
 
 
+def longest_first(paths: list[Path], durations: dict[str, float]) -> list[Path]:
+    """The notebooks by their last duration [s], longest first; those never timed first of all (in name order)."""
+    return sorted(paths, key=lambda p: (p.name in durations, -durations.get(p.name, 0.0), p.name))
+
+
+def _read_durations(path: Path | None) -> dict[str, float]:
+    try:
+        return {str(k): float(v) for k, v in json.loads(path.read_text()).items()}
+    except (AttributeError, OSError, ValueError, TypeError):  # no file (or a damaged one): name order
+        return {}
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``[--timing FILE] [--jobs N] NOTEBOOK.ipynb ...``: run the notebooks, ``N`` at a time (each in its own
-    kernel process), and write the wall time [s] to ``FILE``."""
+    """``[--timing FILE] [--durations FILE] [--jobs N] NOTEBOOK.ipynb ...``: run the notebooks, ``N`` at a time
+    (each in its own kernel process), longest first by ``--durations``; write the wall time [s] to ``--timing``."""
     args = list(argv if argv is not None else sys.argv[1:])
-    timing, jobs = None, 1
-    while args[:1] in (["--timing"], ["--jobs"]) and len(args) > 1:
-        if args[0] == "--timing":  # write the total wall time [s] to this file
-            timing = Path(args[1])
-        else:
-            jobs = max(1, int(args[1]))
-        args = args[2:]
-    paths = sorted(args)
+    options = {"--timing": None, "--durations": None, "--jobs": "1"}
+    while args[:1] and args[0] in options and len(args) > 1:
+        options[args[0]], args = args[1], args[2:]
+    timing, record = (Path(options[k]) if options[k] else None for k in ("--timing", "--durations"))
+    jobs = max(1, int(options["--jobs"]))
+    durations = _read_durations(record)
+    paths = longest_first([Path(a) for a in args], durations)
     if not paths:
-        print("usage: python -m slmlab.run_notebooks [--timing FILE] [--jobs N] NOTEBOOK.ipynb ...", file=sys.stderr)
+        print("usage: python -m slmlab.run_notebooks [--timing FILE] [--durations FILE] [--jobs N] NOTEBOOK.ipynb ...",
+              file=sys.stderr)
         return 2
 
     t0 = time.perf_counter()
@@ -72,10 +89,13 @@ def main(argv: list[str] | None = None) -> int:
                     g.cancel()
                 return 1
             print(f"{futures[f]} done in {dt:.1f} s", flush=True)
+            durations[futures[f].name] = round(dt, 1)
     total = time.perf_counter() - t0
     print(f"{len(paths)} notebooks in {total:.1f} s (wall time, {jobs} at a time)")
     if timing is not None:
-        timing.write_text(f"{total:.1f}\n")
+        atomic_write_text(timing, f"{total:.1f}\n")
+    if record is not None:
+        atomic_write_text(record, json.dumps(dict(sorted(durations.items())), indent=1) + "\n")
     return 0
 
 

@@ -4,13 +4,14 @@ claims holds of the tables it wrote (``tests/claims``).
 The notebooks are ``slow`` but for two cheap ones that keep the quick tier (``pytest -m "not slow"``) running the
 notebook machinery, the plots, the tables and a notebook's claims after its small run."""
 
+import json
 import os
 from pathlib import Path
 
 import pytest
 
 import claims
-from slmlab.run_notebooks import run_notebook
+from slmlab.run_notebooks import longest_first, main, run_notebook
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parent.parent / "notebooks").glob("*.ipynb"))
 QUICK = ("01_system_and_virtual_microscope", "04_initial_vision_model")  # each a few seconds at small size
@@ -22,6 +23,21 @@ def test_there_are_notebooks():
 
 def test_the_quick_notebooks_are_there():
     assert set(QUICK) <= {p.stem for p in NOTEBOOKS}, f"QUICK names a notebook that is not in notebooks/: {QUICK}"
+
+
+def test_notebooks_start_longest_first_and_their_durations_are_recorded(tmp_path):
+    names = [Path(n) for n in ("a.ipynb", "b.ipynb", "c.ipynb", "d.ipynb")]
+    order = longest_first(names, {"a.ipynb": 3.0, "b.ipynb": 40.0, "c.ipynb": 12.0})
+    assert [p.name for p in order] == ["d.ipynb", "b.ipynb", "c.ipynb", "a.ipynb"]  # never timed, then longest
+    nb = tmp_path / "tiny.ipynb"
+    nb.write_text(json.dumps({"cells": [{"cell_type": "code", "id": "c1", "metadata": {}, "execution_count": None,
+                                         "outputs": [], "source": "x = 1"}],
+                              "metadata": {}, "nbformat": 4, "nbformat_minor": 5}))
+    record = tmp_path / "durations.json"
+    record.write_text("not json")  # a damaged record is no record: name order, then rewritten
+    assert main(["--durations", str(record), "--timing", str(tmp_path / "t"), str(nb)]) == 0
+    assert set(json.loads(record.read_text())) == {"tiny.ipynb"}
+    assert float((tmp_path / "t").read_text()) >= json.loads(record.read_text())["tiny.ipynb"] - 0.05
 
 
 @pytest.mark.notebook
