@@ -1,3 +1,7 @@
+"""Shared fixtures. Expensive fixtures are session-scoped, also in the test modules: on an xdist worker the tests of
+several modules interleave, and a module-scoped fixture would be torn down and built again each time its module's
+tests resume (a 34 s rendered set was built twice)."""
+
 import os
 
 import pytest

@@ -32,7 +32,7 @@ def displacement_rms(val, positions_mm):
     return 1e3 * np.sqrt(np.mean((dp - dt) ** 2, axis=0))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def volume():
     m = perfect_stage()
     cal = slmlab.simulate_set(m, slmlab.paper_test(1), seed=1)
@@ -129,7 +129,7 @@ def test_thinning_positions_renumbers_each_sequence():
 
 
 # ----------------------------------------------------------------------------- Z stack alone
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def zstack():
     m = perfect_stage()
     mz = m.replace(moving_plate=zstack_plate())
@@ -164,7 +164,7 @@ def test_the_disparity_direction_is_found_from_the_data(volume):
 
 
 # ----------------------------------------------------------------------------- the real Z stack
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def piv(dataset_folder):
     return dataset_folder("pivchallenge-case-e")
 

@@ -12,7 +12,7 @@ from slmlab.virtual.simulate import stepped_target, target_set
 OPTIONS = {"pinhole": {"variant": "standard"}}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def target():
     """A small stepped target in one pose: every model that needs world positions calibrates on it."""
     return target_set(slmlab.preset("paper"), stepped_target(rows=15, cols=15, pitch_mm=0.3), [[0.0, 0.0, 0.0]], seed=2)

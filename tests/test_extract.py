@@ -16,7 +16,7 @@ from slmlab.images.dots import read_image
 from slmlab.virtual.render import render_plate
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def rendered_set(tmp_path_factory):
     """Test 5 of Table 3 with images, extracted by the command line."""
     d = tmp_path_factory.mktemp("rendered") / "set"

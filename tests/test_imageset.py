@@ -39,7 +39,7 @@ def write_image(path, img):
     path.write_bytes(buf.tobytes())
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def plate_images():
     """Three positions of the 7 × 7 plate, rendered, with their truth."""
     m = slmlab.preset("paper")
@@ -123,12 +123,12 @@ def test_bad_images_are_one_line_errors_and_nothing_is_written(case, tmp_path, p
 
 
 # ----------------------------------------------------------------------------------- the real case E images
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def piv(dataset_folder):
     return dataset_folder("pivchallenge-case-e")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def case_e(tmp_path_factory, piv):
     d = converters.pivchallenge_image_set(piv, tmp_path_factory.mktemp("caseE") / "set", level_offset_mm=-3.0)
     points, notes = extract_set(d, progress=False)

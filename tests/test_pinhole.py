@@ -13,7 +13,7 @@ from slmlab.images.boards import chessboard_views
 from slmlab.virtual.sessions import tilted_session
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small_sets():
     m = slmlab.preset("paper")
     cal = slmlab.simulate_set(m, tilted_session(12, with_sequences=slmlab.paper_test(5)), seed=21)
@@ -105,7 +105,7 @@ def test_real_dot_target_stereo_rms_is_well_under_a_pixel(dataset_folder):
 
 
 # ----------------------------------------------------------------------------------- known 3D targets
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def stepped():
     """The virtual stepped target (five heights over ±1 mm) in one pose, and a volume run to check on, on the
     paper preset with a perfect stage (the known-target floor of notebook 10)."""

@@ -22,7 +22,7 @@ def cli(*args):
     return subprocess.run([sys.executable, "-m", "slmlab", *map(str, args)], capture_output=True, text=True, timeout=600)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def charuco_points(tmp_path_factory):
     """ChArUco corners as another tool writes them: a flat 11 × 15 board of 0.3 mm squares at four stage Z
     positions, known-target columns, a plate that says ``"pattern": "charuco"`` without the board's details

@@ -16,17 +16,17 @@ from slmlab.virtual.simulate import stepped_target, target_set
 from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def perfect():
     return workspace.perfect_stage(slmlab.preset("paper"))
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def volume(perfect):
     return slmlab.simulate_set(perfect, volume_session(25, seed=5), seed=7)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def zstack(perfect):
     mz = perfect.replace(moving_plate=zstack_plate())
     return slmlab.simulate_set(mz, zstack_session(9), seed=2), zstack_frame(mz)

@@ -29,7 +29,7 @@ def assert_user_error(r, *fragments):
         assert f in r.stderr, r.stderr
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small_set(tmp_path_factory):
     d = tmp_path_factory.mktemp("small") / "set"
     slmlab.write_set(d, slmlab.simulate_set(slmlab.preset("paper"), slmlab.paper_test(5), seed=3))
@@ -43,7 +43,7 @@ def work(tmp_path, small_set):
     return d
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def model_file(tmp_path_factory, small_set):
     p = tmp_path_factory.mktemp("model") / "m.json"
     slmlab.calibrate(slmlab.read_set(small_set), "paper-m2").save(p)
@@ -196,7 +196,7 @@ def test_random_corruptions_give_success_or_the_documented_error(small_set, tmp_
 
 
 # ------------------------------------------------------------------------------------------ determinism
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def zstack_set(tmp_path_factory):
     from slmlab.virtual.sessions import zstack_plate, zstack_session
 
