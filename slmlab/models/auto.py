@@ -26,6 +26,15 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    planes can put the midplane far off while fitting both planes to the noise). The check is conservative:
    where perspective bows depth between two planes, a depth-pinned model cannot follow the bow and a
    polynomial can, and nothing measured at the planes says which is right (notebook 11).
+   A known blind spot: held-out dots share their position's stage error (positioning noise, lead and
+   straightness errors: the same for every dot of a position), and a held-out plane's own offset goes out with
+   the fold's, so no fold sees how much of the stage's per-position error a candidate learns as optics (a
+   polynomial of degree 4 can follow all five planes' offsets). Where the stage is much worse than the
+   centroids (a stereo microscope on a micrometre stage: 0.3 µm per move against a 0.07 µm floor) that is
+   most of the error a user sees in X and Y, the held-out error is confidently wrong (every fold prefers the
+   higher degree) and a set with few positions cannot tell the stage from the optics (the direct model's
+   variance components put the stage's error at zero on five planes); where it is near the centroids'
+   (macro stages on stereo-DIC and PIV rigs) it does not matter.
 3. **Choice**, per coordinate: the plain polynomial with the smallest held-out error (the lowest degree
    within :data:`TIE` of the best), unless another candidate is clearly better, by more than :data:`MARGIN`
    of it; then the best of those (within :data:`TIE`, the earlier in :data:`CANDIDATES`).
