@@ -44,7 +44,10 @@ from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image, report
 from .lattice import PlateLattice
 
 __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePair", "image_pairs", "extract_set",
-           "STAGE_FILE"]
+           "STAGE_FILE", "TRACKED"]
+
+#: how the notes name an image numbered by tracking from a neighbour (``... by TRACKED (k)``: k images)
+TRACKED = "tracked through the stack from a neighbouring image"
 
 STAGE_FILE = "stage.csv"
 
@@ -357,7 +360,7 @@ def _number_unanchored(found: list[_Found], notes: list) -> None:
     view (:func:`_track`); how each plate's numbering was anchored goes to the notes."""
     anchored = [f for f in found if f.dots.frame is not None]
     how: dict[str, dict[str, int]] = {}
-    tracked_how = "tracked through the stack from a neighbouring image"
+    tracked_how = TRACKED
     for f in found:
         if f.dots.frame is not None:
             how.setdefault(f.spec.name, {}).setdefault(f.dots.how, 0)

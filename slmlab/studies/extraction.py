@@ -5,6 +5,7 @@ microscope); and the zoo's rigs under every degradation a real camera adds (note
 
 from __future__ import annotations
 
+import re
 import tempfile
 from pathlib import Path
 
@@ -17,7 +18,7 @@ from ..io import KEY_COLUMNS, CalibrationSet, read_set, write_set
 from ..images.centres import METHODS
 from ..images.dots import read_image
 from ..images.extract import extract_image
-from ..images.imageset import extract_set
+from ..images.imageset import TRACKED, extract_set
 from ..virtual.designs import simulate_design
 from ..virtual.microscope import from_dict
 from ..virtual.render import DEGRADATIONS, render_rig_set, rendered_truth, rig_degradations
@@ -230,7 +231,9 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     (:func:`rig_extraction_errors`). One row per degradation and rig: ``images``, ``visible_dots`` (whole in the
     image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
     spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
-    found dots, the centre ``method`` the extraction chose, and ``note``: why a set could not be extracted
+    found dots, the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be
+    numbered alone and were tracked from a neighbouring image (a plate that moves more than half a pitch
+    between them is numbered one row or column off), and ``note``: why a set could not be extracted
     (``extract``'s one-line error; then nothing is found)."""
     if folder is None:  # a temporary folder, removed afterwards
         with tempfile.TemporaryDirectory(prefix="slmlab-extraction-") as tmp:
@@ -249,8 +252,9 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
             except SlmlabError as exc:
                 pts, notes = rendered.points.iloc[:0], [f"not extracted: {exc.reason}"]
             chosen = sorted({n.split("centres by ")[1].split(" ")[0] for n in notes if "centres by " in n})
+            tracked = sum(int(k) for n in notes for k in re.findall(re.escape(TRACKED) + r" \((\d+)\)", n))
             rows.append({"degradation": name, "rig": rig.preset,
                          **_degradation_row(rig_extraction_errors(pts, rendered)),
-                         "method": "/".join(chosen) or method,
+                         "method": "/".join(chosen) or method, "tracked_images": tracked,
                          "note": next((n for n in notes if n.startswith("not extracted")), "")})
     return pd.DataFrame(rows)

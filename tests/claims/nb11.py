@@ -78,6 +78,9 @@ def check_extraction(t: Tables, size: str) -> None:
         streaks = g[g["degradation"].isin(["streaks", "all together"])]
         clean = float(g.loc[g["degradation"] == "clean", "rms_px"].iloc[0])
         claim((streaks["rms_px"] > clean).all(), name, rig, "window streaks pull the centres (RMS above the clean images')")
+    for r in ex[ex["misnumbered"] > 0].itertuples():
+        claim(r.tracked_images > 0, name, f"{r.degradation}, {r.rig}",
+              "misnumbered dots come from images numbered by tracking from the other stage position")
     if size == "full":
         claim(set(ex["rig"]) == {"greenough", "stereo-dic", "stereo-piv"} and ex["degradation"].nunique() == 15,
               name, "rigs", "every rig under every degradation")
