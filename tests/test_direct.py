@@ -246,3 +246,18 @@ def test_the_commanded_frame_limit_is_the_floor_on_a_perfect_stage_and_above_it_
     noisy = workspace.perfect_stage(slmlab.preset("paper"), keep=("positioning_noise_um",))
     limit = workspace.commanded_frame_limit(noisy, slmlab.paper_test(1), val, repeats=3)
     assert (limit["attainable_vs_floor"][:2] > 1.1).all(), limit
+
+
+def test_the_variance_cache_changes_no_result_and_hands_out_copies(paper_set):
+    from slmlab.models import direct
+    from slmlab.io import json_text
+
+    direct._VARIANCE_CACHE.clear()
+    cold = json_text(slmlab.calibrate(paper_set).to_dict())
+    assert direct._VARIANCE_CACHE, "the default's fits should have filled the cache"
+    (s_e2, _), precision = next(iter(direct._VARIANCE_CACHE.values()))
+    before = (s_e2.copy(), precision.copy())
+    warm = json_text(slmlab.calibrate(paper_set).to_dict())  # every estimate from the cache
+    assert warm == cold
+    (s_e2, _), precision = next(iter(direct._VARIANCE_CACHE.values()))
+    assert np.array_equal(s_e2, before[0]) and np.array_equal(precision, before[1])  # nobody changed them

@@ -54,6 +54,8 @@ user can declare its uncertainty from the stage's datasheet as ``stage_scale_sig
 
 from __future__ import annotations
 
+import hashlib
+import json
 from itertools import combinations_with_replacement
 
 import numpy as np
@@ -478,10 +480,33 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
             "mode": mode, "length_reference": scale, "variables_cv": variables_cv}
 
 
+#: the last few variance components computed, by a digest of their inputs: the default fits the same rows in
+#: the same frame once per plain-polynomial degree (and again per held-out fold), and each estimate is two
+#: rich-polynomial solves (the same inputs give the same bits, so the cache changes no result)
+_VARIANCE_CACHE: dict[bytes, tuple] = {}
+_VARIANCE_CACHE_SIZE = 16
+
+
 def _variance_components(w, frame, target, groups, positions, max_degree: int, depth_cap: int):
     """The variance components (one row's scatter, the stage's error per position) from a rich polynomial,
     and how one point's scatter grows with defocus (the rows' relative precision). Returns ``(variance,
-    precision)`` for :func:`_solve`."""
+    precision)`` for :func:`_solve` (copies: the caller may keep or change them)."""
+    digest = hashlib.blake2b(json.dumps([frame, max_degree, depth_cap], sort_keys=True, default=str).encode())
+    for a in (w, target, groups, positions):
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.dtype}{a.shape}".encode())
+        digest.update(a.tobytes())
+    key = digest.digest()
+    if key not in _VARIANCE_CACHE:
+        if len(_VARIANCE_CACHE) >= _VARIANCE_CACHE_SIZE:
+            _VARIANCE_CACHE.pop(next(iter(_VARIANCE_CACHE)))  # the oldest
+        _VARIANCE_CACHE[key] = _estimate_variance(w, frame, target, groups, positions, max_degree, depth_cap)
+    (s_e2, s_u2), precision = _VARIANCE_CACHE[key]
+    return (s_e2.copy(), s_u2.copy()), precision.copy()
+
+
+def _estimate_variance(w, frame, target, groups, positions, max_degree: int, depth_cap: int):
+    """:func:`_variance_components`, computed."""
     rich = max(d for d in range(1, max_degree + 1) if d == 1 or len(_exponents(d)) * 4 < len(w))
     phi_rich = features(w, rich, frame)
     rich_mask = _monomial_mask([rich] * 3, 3, depth_cap)
