@@ -158,3 +158,14 @@ def test_real_dot_target_pairs_are_found_and_indexed_consistently(dataset_folder
         assert inl.mean() >= 0.95
     assert len(counts) == 14
     print(pd.DataFrame(counts, columns=["pair", "left", "right", "common"]).to_string(index=False))
+
+
+@pytest.mark.xdist_group("rendered_set")
+def test_the_rendered_set_tests_share_one_worker(request):
+    """``make test`` (pytest-xdist, ``--dist loadgroup``) runs the tests of one ``xdist_group`` on one worker, so
+    that their expensive fixture is built once; a pytest that pytest-xdist cannot group on would build it on
+    every worker, silently."""
+    if getattr(request.config.option, "loadgroup", False):
+        assert request.node.nodeid.endswith("@rendered_set"), (
+            "pytest-xdist did not group this test (its node id has no '@rendered_set'): this pytest and "
+            "pytest-xdist do not work together for --dist loadgroup; see the pytest pin in environment.txt")
