@@ -3,8 +3,8 @@
 ``python -m slmlab.run_notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
 with the working directory set to the notebook's folder, and fails (exit 1) if one raises. With
 ``--durations FILE`` (JSON, notebook name to seconds) the notebooks that took longest last time start first, and
-the file is updated: two at a time, starting the longest last would leave one core idle at the end. Outputs are not written back:
-notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
+the file is updated: two at a time, starting the longest last would leave one core idle at the end. Outputs
+are not written back: notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
 """
 
 from __future__ import annotations
@@ -55,9 +55,11 @@ def longest_first(paths: list[Path], durations: dict[str, float]) -> list[Path]:
 
 
 def _read_durations(path: Path | None) -> dict[str, float]:
+    if path is None:
+        return {}
     try:
         return {str(k): float(v) for k, v in json.loads(path.read_text()).items()}
-    except (AttributeError, OSError, ValueError, TypeError):  # no file (or a damaged one): name order
+    except (AttributeError, OSError, ValueError, TypeError):  # no file, or a damaged one: name order
         return {}
 
 

@@ -360,7 +360,6 @@ def _number_unanchored(found: list[_Found], notes: list) -> None:
     view (:func:`_track`); how each plate's numbering was anchored goes to the notes."""
     anchored = [f for f in found if f.dots.frame is not None]
     how: dict[str, dict[str, int]] = {}
-    tracked_how = TRACKED
     for f in found:
         if f.dots.frame is not None:
             how.setdefault(f.spec.name, {}).setdefault(f.dots.how, 0)
@@ -388,8 +387,8 @@ def _number_unanchored(found: list[_Found], notes: list) -> None:
             if f.spec.levels == 2:
                 t["level"] = (t["xu"] % 2).astype(int)
         f.dots.table, f.dots.frame, f.dots.how = t, ref.dots.frame, f"tracked from {source}"
-        how.setdefault(f.spec.name, {}).setdefault(tracked_how, 0)
-        how[f.spec.name][tracked_how] += 1
+        how.setdefault(f.spec.name, {}).setdefault(TRACKED, 0)
+        how[f.spec.name][TRACKED] += 1
     for name, kinds in how.items():
         total = sum(kinds.values())
         notes.append(f"plate {name}: numbering anchored in {total} image(s) by "
