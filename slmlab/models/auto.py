@@ -13,19 +13,26 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    on stage moves the same polynomial of the four image coordinates estimated by the direct model's solver,
    the stage's error at each position a random effect: ordinary least squares lets a stage's positioning
    noise into the polynomial's shape, and on the ``paper`` preset costs 15 % in Y over the volume).
-   Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models pin their
-   degree in depth below the number of distinct depths.
+   Where the dots' world positions are known and the set has fewer depths than held-out planes need
+   (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`), also the pinhole pair (OpenCV, one 3D view of the
+   dots: :mod:`slmlab.models.pinhole`; settings :data:`PINHOLE`), the one candidate whose bend in depth is set
+   by physics. Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models
+   pin their degree in depth below the number of distinct depths.
 2. **Held-out error inside the calibrated volume** (:func:`slmlab.models.folds.row_folds`): held-out dots
    within positions; crossed with held-out interior planes where a stack has enough of them
    (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`); interior stage positions on stage moves. Never whole
    positions where there are too few to interpolate between: holding out one of two planes measures an
    extrapolation over the full depth, which says nothing of the error inside it. Then nothing measured says how
-   a plain polynomial bends between the depths (and just past them): one whose difference there from every
-   depth-pinned candidate (in the frame they share: both fit the calibrated depths) is more than
-   :data:`BETWEEN_DEPTHS` times their held-out errors is dropped for that coordinate (a cubic through two
-   planes can put the midplane far off while fitting both planes to the noise). The check is conservative:
-   where perspective bows depth between two planes, a depth-pinned model cannot follow the bow and a
-   polynomial can, and nothing measured at the planes says which is right (notebook 11).
+   a candidate bends between the depths (and just past them), and physics decides
+   (:func:`_between_depths_guard`): where the pinhole pair fits the rig as well as the best candidate (held-out
+   X and Y), perspective sets the bend (a camera's magnification changes between the planes, and with it the
+   image of every depth between them), and a candidate whose difference there from the pinhole (in the frame
+   they share: both fit the calibrated depths) is more than :data:`BETWEEN_DEPTHS` times their held-out errors
+   is dropped for that coordinate. On a stereo-DIC pair calibrated on two planes, a model linear in depth puts
+   the midplane 30 µm off in Z against a 4 µm floor; the pinhole pair is within 1.2× of the floor (notebook 11).
+   Where the pinhole does not fit (refraction through a window, a lens a pinhole cannot describe), a plain
+   polynomial is dropped where it so differs from every depth-pinned candidate (direct, soloff): a cubic
+   through two planes can put the midplane far off while fitting both planes to the noise.
    A known blind spot: held-out dots share their position's stage error (positioning noise, lead and
    straightness errors: the same for every dot of a position), and a held-out plane's own offset goes out with
    the fold's, so no fold sees how much of the stage's per-position error a candidate learns as optics (a
@@ -58,11 +65,15 @@ from .folds import PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, hel
 from .frames import world_positions
 from .reference import DEGREES as POLYNOMIAL_DEGREES
 
-__all__ = ["CANDIDATES", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
+__all__ = ["CANDIDATES", "PINHOLE", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
            "selection_table", "AutoModel"]
 
 #: the candidates, in order of preference ("polynomial": the plain polynomial of every allowed degree)
-CANDIDATES = ("direct", "soloff", "polynomial")
+CANDIDATES = ("direct", "soloff", "pinhole", "polynomial")
+#: the pinhole candidate's settings: OpenCV's rational and thin-prism distortion terms (a general lens; the
+#: pinhole model's own choice among its variants would cost four more fits), each OpenCV fit stopped after this
+#: many steps (a pair that has not converged by then does not fit the rig, and its held-out error says so)
+PINHOLE = {"variant": "thin-prism", "iterations": 100}
 #: within this share of the best held-out error, candidates are equally good
 TIE = 0.02
 #: a candidate other than the plain polynomial wins only where it is better than it by more than this share
@@ -90,10 +101,14 @@ def candidate_list(candidates, world: np.ndarray, mode: str) -> tuple[list[tuple
                                                   else ("polynomial", {"degree": d}))))
             continue
         get_model_class(c)
-        if c == "soloff" and mode == "moves":
+        depths = len(np.unique(np.round(world[:, 2], 6)))
+        if c in ("soloff", "pinhole") and mode == "moves":
             skipped[c] = "needs the dots' world positions (a Z stack or a known target)"
+        elif c == "pinhole" and depths >= PLANES_FOR_PLANE_FOLDS:
+            skipped[c] = (f"not needed: {depths} depths, whose held-out interior planes measure how each candidate "
+                          "bends between depths")
         else:
-            out.append((c, c, {}))
+            out.append((c, c, dict(PINHOLE) if c == "pinhole" else {}))
     return out, skipped
 
 
@@ -140,9 +155,9 @@ class AutoModel(Model):
     polynomial (module docstring)."""
 
     name = "auto"
-    summary = ("slmlab's default: per coordinate, the candidate (direct, soloff, plain polynomials) with the "
-               "smallest error on held-out dots and planes inside the calibrated volume, a plain polynomial unless "
-               "another is clearly better; the choice and its evidence are in the model file")
+    summary = ("slmlab's default: per coordinate, the candidate (direct, soloff, pinhole, plain polynomials) with "
+               "the smallest error on held-out dots and planes inside the calibrated volume, a plain polynomial "
+               "unless another is clearly better; the choice and its evidence are in the model file")
     accuracy_rank = 1
     units = {"models": "each candidate's own parameters and units"}
 
@@ -309,28 +324,36 @@ def _held_out(cal: CalibrationSet, cands, fitted: dict, options: dict, skipped: 
 
 
 def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped: dict) -> set[tuple[str, int]]:
-    """Where held-out dots are all a set with few depths allows (:func:`slmlab.models.folds.row_folds`), a plain
-    polynomial is dropped for a coordinate where, between the calibrated depths
-    (:func:`slmlab.models.folds.between_depths`), it disagrees with every depth-pinned candidate by more than
-    :data:`BETWEEN_DEPTHS` times the larger held-out error. Returns the ``(label, coordinate)`` pairs dropped;
-    the reasons go to ``skipped``."""
+    """Where held-out dots are all a set with few depths allows (:func:`slmlab.models.folds.row_folds`), the
+    candidates that bend between the calibrated depths (:func:`slmlab.models.folds.between_depths`) where nothing
+    was measured are dropped, per coordinate (module docstring, step 2). The reference there is the pinhole pair
+    where it fits the rig as well as the best candidate (its held-out error in X and Y within :data:`MARGIN` of
+    the best: within a plane depth is one number, which a flexible polynomial can fit and still bend between the
+    planes): perspective sets its bend, measured by the change of magnification between the depths; every other
+    candidate that disagrees with it by more than :data:`BETWEEN_DEPTHS` times the larger held-out error is
+    dropped. Otherwise a plain polynomial is dropped where it so disagrees with every depth-pinned candidate
+    (direct, soloff). Returns the ``(label, coordinate)`` pairs dropped; the reasons go to ``skipped``."""
     depths = len(np.unique(np.round(world[:, 2], 6)))
     pinned = [c for c in ("direct", "soloff") if c in cv]
     dropped: set[tuple[str, int]] = set()
-    if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not pinned:
+    if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not (pinned or "pinhole" in cv):
         return dropped
     w = between_depths(pts, world)
     if not len(w):
         return dropped
-    refs = {c: fitted[c].reconstruct(w) for c in pinned}
-    for label in [c for c in cv if _is_polynomial(c)]:
-        p = fitted[label].reconstruct(w)
-        for k, axis in enumerate("XYZ"):
-            gaps = {r: float(np.sqrt(np.mean((p[:, k] - q[:, k]) ** 2))) for r, q in refs.items()}
+    recon = {c: fitted[c].reconstruct(w) for c in cv}
+    pinhole_fits = "pinhole" in cv and all(cv["pinhole"][k] <= (1 + MARGIN) * min(e[k] for e in cv.values())
+                                           for k in (0, 1))
+    for k, axis in enumerate("XYZ"):
+        if pinhole_fits:
+            refs, tested = ["pinhole"], [c for c in cv if c != "pinhole"]
+        else:
+            refs, tested = [c for c in pinned], [c for c in cv if _is_polynomial(c)]
+        for label in tested if refs else []:
+            gaps = {r: float(np.sqrt(np.mean((recon[label][:, k] - recon[r][:, k]) ** 2))) for r in refs}
             if all(g > BETWEEN_DEPTHS * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
                 dropped.add((label, k))
                 skipped[f"{label} ({axis})"] = (f"bends between the {depths} calibrated depths: "
                                                 + ", ".join(f"{1e3 * g:.3g} um from {r}" for r, g in gaps.items())
-                                                + f", held-out {1e3 * min(cv[r][k] for r in pinned):.3g} um")
+                                                + f", held-out {1e3 * min(cv[r][k] for r in refs):.3g} um")
     return dropped
-

@@ -19,24 +19,26 @@ Distortion variants (recorded in the model file): ``standard`` (k1, k2, p1, p2, 
 ``thin-prism`` (+ s1–s4), ``tilted`` (+ τx, τy). By default the one with the smallest displacement error on
 held-back stage positions of the calibration set is kept.
 
-Known 3D targets
-----------------
-A known-target set (``x_mm, y_mm, z_mm``: DATA_FORMAT.md) gives every dot's world position, the stage
-position plus its place on the target. The cameras do not move, so all its dots, over every stage position,
-are **one view** of one non-planar target in the world frame (a stepped target in one pose; a flat board at
-several stage Z positions), as PTV tools calibrate: a DLT (the 3 × 4 projection matrix by linear least
-squares, :func:`dlt`) per camera, decomposed by ``cv2.decomposeProjectionMatrix`` into the intrinsic guess
-that ``cv2.calibrateCamera`` needs for a non-planar target (``CALIB_USE_INTRINSIC_GUESS``; refined in stages:
-no distortion, the standard terms, then the variant's), then ``cv2.stereoCalibrate`` with the intrinsics
-refined jointly or fixed, the lower RMS kept (:func:`calibrate_target`). No stage map is fitted: the target
-places the cameras in the world, by a map fitted on its dots' world positions (:func:`fit_world_map`). A
-single pose of a flat target is refused: one view of a plane cannot separate focal length from distance. The
-variant is chosen on every 3rd dot held back. On the virtual stepped target (±1 mm of depth: ±0.3 % of
-magnification at L = 300 mm, pixels across the field, far above the dots' noise) the ``thin-prism`` variant
-reaches the noise floor: the CMO's distortion about the objective axis, written about a principal point
-thousands of pixels away, is a radial term plus quadratic (decentring and thin-prism) terms, which OpenCV's
-``p1, p2, s1, s3`` cover; the standard terms alone leave 2–4 × the floor. The focal length itself stays
-loosely determined (a few % off ``L / pixel``, traded against the distance) and OpenCV's σ(f) does not show it.
+Known 3D targets and Z stacks
+-----------------------------
+A known-target set (``x_mm, y_mm, z_mm``: the README's "The format") gives every dot's world position, the
+stage position plus its place on the target; so does a Z stack of a plate of known lattice (nothing else
+moving), the stage's Z plus the plate's lattice (:func:`slmlab.models.frames.world_positions`). The cameras do
+not move, so all its dots, over every stage position, are **one view** of one non-planar target in the world
+frame (a stepped target in one pose; a flat board at two or more stage Z positions), as PTV tools calibrate: a
+DLT (the 3 × 4 projection matrix by linear least squares, :func:`dlt`) per camera, decomposed by
+``cv2.decomposeProjectionMatrix`` into the intrinsic guess that ``cv2.calibrateCamera`` needs for a non-planar
+target (``CALIB_USE_INTRINSIC_GUESS``; refined in stages: no distortion, the standard terms, then the
+variant's), then ``cv2.stereoCalibrate`` with the intrinsics refined jointly or fixed, the lower RMS kept
+(:func:`calibrate_target`). No stage map is fitted: the target places the cameras in the world, by a map
+fitted on its dots' world positions (:func:`fit_world_map`). A single pose of a flat target is refused: one
+view of a plane cannot separate focal length from distance. The variant is chosen on every 3rd dot held back.
+On the virtual stepped target (±1 mm of depth: ±0.3 % of magnification at L = 300 mm, pixels across the field,
+far above the dots' noise) the ``thin-prism`` variant reaches the noise floor: the CMO's distortion about the
+objective axis, written about a principal point thousands of pixels away, is a radial term plus quadratic
+(decentring and thin-prism) terms, which OpenCV's ``p1, p2, s1, s3`` cover; the standard terms alone leave
+2–4 × the floor. The focal length itself stays loosely determined (a few % off ``L / pixel``, traded against the
+distance) and OpenCV's σ(f) does not show it.
 
 Two details of the CMO microscope that OpenCV's conventions do not expect:
 
@@ -214,7 +216,12 @@ def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: st
 #: OpenCV flags of a camera without distortion (the first stage of a known target's calibration)
 NO_DISTORTION = cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 #: a known target's calibration runs until converged (its first guess, a DLT, is far from the optimum)
-TARGET_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 3000, 1e-10)
+TARGET_ITERATIONS = 3000
+
+
+def _target_criteria(iterations: int) -> tuple:
+    """OpenCV's stopping rule for a known target's fits: ``iterations`` Levenberg–Marquardt steps at most."""
+    return (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, int(iterations), 1e-10)
 
 
 def _normaliser(x: np.ndarray) -> np.ndarray:
@@ -260,7 +267,10 @@ def target_view(cal: CalibrationSet) -> tuple[dict, pd.DataFrame, np.ndarray]:
     """A known-target set as one view of one 3D target (module docstring): the view (``obj``: the dots' world
     positions less their mean [mm]; ``l``, ``r``: their image points [px]), the rows used and their world
     positions ``(n, 3)`` [mm]. Raises naming the reason where the dots do not determine a pinhole camera."""
-    pts, world, _ = world_positions(cal, "target")
+    pts, world, mode = world_positions(cal)
+    if mode == "moves":
+        raise SlmlabError("the dots' world positions are not known (stage moves of a plate whose place is unknown); "
+                          "a pinhole camera from one 3D view needs a known target or a Z stack of a plate", cal.path)
     if len(pts) < MIN_DOTS:
         raise SlmlabError(f"only {len(pts)} dots seen in both images with a known target position; the pinhole "
                           f"model needs at least {MIN_DOTS}", cal.path)
@@ -293,7 +303,8 @@ def _centred(k: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarr
     return k, shift
 
 
-def _target_cameras(view: dict, size: tuple[int, int], fix: int, path=None) -> tuple[np.ndarray, bool, dict]:
+def _target_cameras(view: dict, size: tuple[int, int], fix: int, path=None,
+                    iterations: int = TARGET_ITERATIONS) -> tuple[np.ndarray, bool, dict]:
     """Both cameras on one non-planar view, up to the standard distortion terms: the DLT's intrinsic guess
     refined by ``cv2.calibrateCamera`` without distortion, then with the standard terms (the variants' terms
     start from there: straight from the DLT the optimiser stalls). Returns the target points as given to
@@ -304,35 +315,39 @@ def _target_cameras(view: dict, size: tuple[int, int], fix: int, path=None) -> t
     for side in "lr":
         cam = (dlt_intrinsics(dlt(obj, view[side]), obj)[0], None, np.nan)
         for flags in (NO_DISTORTION, 0):
-            cam = _refine_camera(obj, view[side], size, cam, flags | fix)
+            cam = _refine_camera(obj, view[side], size, cam, flags | fix, iterations)
         cams[side] = cam
     return obj, mirrored, cams
 
 
-def _refine_camera(obj: np.ndarray, img: np.ndarray, size: tuple[int, int], cam: tuple, flags: int) -> tuple:
+def _refine_camera(obj: np.ndarray, img: np.ndarray, size: tuple[int, int], cam: tuple, flags: int,
+                   iterations: int = TARGET_ITERATIONS) -> tuple:
     """One camera ``(K, distortion, σ(f))`` refined by ``cv2.calibrateCameraExtended`` on one view, from ``cam``,
     its principal point moved to the image centre while OpenCV works (:func:`_centred`)."""
     k, shift = _centred(cam[0], size)
     _, k, d, _, _, std_in, _, _ = cv2.calibrateCameraExtended(
         [obj.astype(np.float32)], [(img + shift).astype(np.float32)], size, k, None if cam[1] is None else cam[1].copy(),
-        flags=cv2.CALIB_USE_INTRINSIC_GUESS | flags, criteria=TARGET_CRITERIA)
+        flags=cv2.CALIB_USE_INTRINSIC_GUESS | flags, criteria=_target_criteria(iterations))
     k = k.copy()
     k[:2, 2] -= shift
     return k, d, float(std_in[0, 0])
 
 
 def calibrate_target(view: dict, image_size: tuple[int, int], variant: str = "thin-prism", *,
-                     fix_focal: bool = False, path=None, start=None) -> tuple[StereoPinhole, bool]:
+                     fix_focal: bool = False, path=None, start=None,
+                     iterations: int = TARGET_ITERATIONS) -> tuple[StereoPinhole, bool]:
     """A stereo pinhole pair from one view of a non-planar target (:func:`target_view`; module docstring):
     each camera by :func:`_target_cameras` (or from ``start``, its result) and the variant's terms, then
-    ``cv2.stereoCalibrate`` with the intrinsics refined jointly or fixed, the lower RMS kept. Returns the pair
-    (in the target's frame, mirrored where the images are) and whether the images are mirror images of it."""
+    ``cv2.stereoCalibrate`` with the intrinsics refined jointly or fixed, the lower RMS kept; every OpenCV fit
+    stops after ``iterations`` steps. Returns the pair (in the target's frame, mirrored where the images are)
+    and whether the images are mirror images of it."""
     if variant not in VARIANTS:
         raise SlmlabError(f"unknown pinhole distortion variant {variant!r}; use one of {', '.join(VARIANTS)}")
     fix = cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0
-    obj, mirrored, cams = start or _target_cameras(view, image_size, fix, path)
+    obj, mirrored, cams = start or _target_cameras(view, image_size, fix, path, iterations)
     if VARIANTS[variant]:
-        cams = {side: _refine_camera(obj, view[side], image_size, cams[side], VARIANTS[variant] | fix) for side in "lr"}
+        cams = {side: _refine_camera(obj, view[side], image_size, cams[side], VARIANTS[variant] | fix, iterations)
+                for side in "lr"}
     (k1, s1), (k2, s2) = (_centred(cams[side][0], image_size) for side in "lr")
     img1, img2 = (view["l"] + s1).astype(np.float32), (view["r"] + s2).astype(np.float32)
     best = None
@@ -340,7 +355,7 @@ def calibrate_target(view: dict, image_size: tuple[int, int], variant: str = "th
                        ("fixed intrinsics", cv2.CALIB_FIX_INTRINSIC)):
         res = cv2.stereoCalibrate([obj.astype(np.float32)], [img1], [img2], k1.copy(), cams["l"][1].copy(),
                                   k2.copy(), cams["r"][1].copy(), image_size, flags=flags | VARIANTS[variant],
-                                  criteria=TARGET_CRITERIA)
+                                  criteria=_target_criteria(iterations))
         if np.isfinite(res[0]) and (best is None or res[0] < best[0][0]):
             best = (res, how)
     if best is None:
@@ -458,6 +473,15 @@ def _held_back_dots_errors(view: dict, pts: pd.DataFrame, world: np.ndarray, siz
     return scores
 
 
+def _z_stack_only(cal: CalibrationSet) -> bool:
+    """Whether the set is a Z stack of a plate of known lattice and nothing else moves (its dots' world
+    positions known: :func:`slmlab.models.frames.world_positions`), calibrated as one view of a 3D target."""
+    try:
+        return world_positions(cal)[2] == "zstack"
+    except SlmlabError:
+        return False
+
+
 def _choose(scores: dict, fallback: str) -> str:
     """The variant with the smallest finite held-back error (``fallback`` where none is finite)."""
     finite = {k: v for k, v in scores.items() if np.isfinite(v)}
@@ -481,15 +505,18 @@ class PinholeModel(Model):
 
     @classmethod
     def fit(cls, cal: CalibrationSet, *, variant: str | None = None, stage_map: str = "affine",
-            views_from: tuple[str, ...] | None = None, fix_focal: bool = False, f_guess_px: float | None = None, **_):
+            views_from: tuple[str, ...] | None = None, fix_focal: bool = False, f_guess_px: float | None = None,
+            iterations: int = TARGET_ITERATIONS, **_):
         """``variant`` ``None`` chooses by held-back positions (a known target: held-back dots);
         ``stage_map`` the map to the stage (or, for a known target, to the world: :func:`fit_world_map`);
         ``views_from`` the sequences used as target views (default: ``T`` if the set has tilted poses, else X,
         Y, Z; a known target uses all its sequences as one view); ``f_guess_px`` defaults to ``L / pixel`` of a
-        CMO microscope with a 300 mm perspective distance and 3 µm pixels (a known target: from its DLT)."""
+        CMO microscope with a 300 mm perspective distance and 3 µm pixels (a known target: from its DLT);
+        ``iterations`` caps each of OpenCV's fits on a known target or a Z stack (one 3D view)."""
         with one_thread():  # (calibrate pins threads too; this covers a direct call of fit)
-            if cal.known_target:
-                return cls._fit_target(cal, variant=variant, stage_map=stage_map, fix_focal=fix_focal)
+            if cal.known_target or _z_stack_only(cal):
+                return cls._fit_target(cal, variant=variant, stage_map=stage_map, fix_focal=fix_focal,
+                                       iterations=int(iterations))
             return cls._fit(cal, variant=variant, stage_map=stage_map, views_from=views_from, fix_focal=fix_focal,
                             f_guess_px=f_guess_px)
 
@@ -517,28 +544,30 @@ class PinholeModel(Model):
                    calibration={**_report(stereo, scores), "held_back": "every 3rd stage position"})
 
     @classmethod
-    def _fit_target(cls, cal, *, variant, stage_map, fix_focal):
+    def _fit_target(cls, cal, *, variant, stage_map, fix_focal, iterations):
         view, pts, world = target_view(cal)
         scores = {}
         if variant is None:
             scores = _held_back_dots_errors(view, pts, world, cal.image_size_px, stage_map, fix_focal)
             variant = _choose(scores, "thin-prism")
         try:
-            stereo, mirrored = calibrate_target(view, cal.image_size_px, variant, fix_focal=fix_focal, path=cal.path)
+            stereo, mirrored = calibrate_target(view, cal.image_size_px, variant, fix_focal=fix_focal, path=cal.path,
+                                                iterations=iterations)
         except cv2.error as exc:
             raise SlmlabError(f"OpenCV could not calibrate a pinhole camera on the known target "
                               f"({str(exc).strip().splitlines()[-1]}); check x_mm, y_mm, z_mm", cal.path) from None
         a, t = fit_world_map(stereo.triangulate(np.column_stack([view["l"], view["r"]])), world, stage_map)
         sequences = list(dict.fromkeys(pts["sequence"]))
         return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": sequences,
-                                          "fix_focal": fix_focal, "f_guess_px": None},
+                                          "fix_focal": fix_focal, "f_guess_px": None, "iterations": iterations},
                    calibration={**_report(stereo, scores), "held_back": "every 3rd dot",
-                                "world_from": f"known target: one view of {len(pts)} dots at "
+                                "world_from": f"{'known target' if cal.known_target else 'Z stack of a plate'}: "
+                                              f"one view of {len(pts)} dots at "
                                               f"{pts.groupby(['sequence', 'position']).ngroups} stage position(s)",
                                 "image_mirrored": mirrored})
 
     def describe(self) -> str:
-        world = "known target" if self.calibration.get("world_from", "").startswith("known target") else "stage moves"
+        world = self.calibration.get("world_from", "stage moves").split(":")[0]
         return (f"pinhole ({self.options.get('variant', self.stereo.variant)} distortion, "
                 f"{self.options.get('stage_map', 'affine')} map from {world})")
 

@@ -1,0 +1,53 @@
+"""The default model's choice where the set has few depths: between the calibrated depths nothing is measured,
+and the pinhole pair (perspective) decides where it fits the rig; where it does not (refraction through a
+window), it is no reference and is not chosen. Errors are held against the truth of the zoo's rigs."""
+
+import numpy as np
+import pytest
+
+from slmlab.models import calibrate
+from slmlab.models.auto import MARGIN
+from slmlab.studies.zoo import compare_models
+from slmlab.virtual.designs import simulate_design
+from slmlab.virtual.rigs import rig_by_name
+
+pytestmark = pytest.mark.slow  # zoo calibrations with every candidate (seconds each)
+
+
+def _table(rig: str, design: str, seed: int):
+    return compare_models(rig_by_name(rig), design, seed=seed, models=("auto",)).set_index("model")
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_on_two_planes_of_a_stereo_dic_pair_depth_comes_from_the_pinhole(seed):
+    """A model linear in depth cannot follow perspective's bow between two planes; the pinhole pair can, and the
+    default takes depth from it: near the floor, and below every plain polynomial (held against the truth)."""
+    t = _table("stereo-dic", "zstack-2", seed)
+    assert "Z" in t.loc["pinhole", "chosen_for"]
+    assert t.loc["pinhole", "note"].endswith("affine map from Z stack of a plate)")
+    polys = t[t.index.str.startswith("polynomial")]
+    assert t.loc["auto", "Z_um"] <= 1.3 * t.loc["floor", "Z_um"], t[["X_um", "Y_um", "Z_um"]]
+    assert t.loc["auto", "Z_um"] < polys["Z_um"].min()
+    assert t.loc["direct", "Z_um"] > 3 * t.loc["auto", "Z_um"]  # what the old choice gave
+
+
+def test_behind_a_window_the_pinhole_is_no_reference_and_is_not_chosen():
+    """Refraction through a flat wall is not a pinhole camera: its held-out error in X and Y is well above the
+    best candidate's, so it neither decides between the depths nor is chosen; the default stays near the floor."""
+    cal = simulate_design(rig_by_name("stereo-piv"), "zstack-2", seed=1)
+    sel = calibrate(cal).calibration["selection"]
+    cv = sel["held_out_rms_mm"]
+    best = {k: min(e[k] for e in cv.values()) for k in (0, 1)}
+    assert any(cv["pinhole"][k] > (1 + MARGIN) * best[k] for k in (0, 1))
+    assert "pinhole" not in sel["choice"].values()
+    assert not any("from pinhole" in why for why in sel["skipped"].values())
+    t = _table("stereo-piv", "zstack-2", 1)
+    xyz = ["X_um", "Y_um", "Z_um"]
+    ratio = t.loc["auto", xyz].to_numpy(float) / t.loc["floor", xyz].to_numpy(float)
+    assert np.all(ratio <= 1.2), ratio
+
+
+def test_with_enough_planes_the_pinhole_is_not_a_candidate():
+    sel = calibrate(simulate_design(rig_by_name("stereo-dic"), "zstack-5", seed=1)).calibration["selection"]
+    assert "pinhole" not in sel["held_out_rms_mm"]
+    assert sel["skipped"]["pinhole"].startswith("not needed: 5 depths")
