@@ -65,7 +65,7 @@ from .folds import PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, hel
 from .frames import world_positions
 from .reference import DEGREES as POLYNOMIAL_DEGREES
 
-__all__ = ["CANDIDATES", "PINHOLE", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
+__all__ = ["CANDIDATES", "PINHOLE", "PINHOLE_MISFIT", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
            "selection_table", "AutoModel"]
 
 #: the candidates, in order of preference ("polynomial": the plain polynomial of every allowed degree)
@@ -74,6 +74,10 @@ CANDIDATES = ("direct", "soloff", "pinhole", "polynomial")
 #: pinhole model's own choice among its variants would cost four more fits), each OpenCV fit stopped after this
 #: many steps (a pair that has not converged by then does not fit the rig, and its held-out error says so)
 PINHOLE = {"variant": "thin-prism", "iterations": 100}
+#: a pinhole pair whose reprojection error is more than this many times the Soloff polynomials' image residual
+#: (per point, both coordinates) does not describe the rig (refraction through a window, say), and is not
+#: cross-validated: its held-out error would only say so again, at five more OpenCV fits
+PINHOLE_MISFIT = 2.0
 #: within this share of the best held-out error, candidates are equally good
 TIE = 0.02
 #: a candidate other than the plain polynomial wins only where it is better than it by more than this share
@@ -315,12 +319,30 @@ def _held_out(cal: CalibrationSet, cands, fitted: dict, options: dict, skipped: 
     for label, name, _ in cands:
         if label not in fitted:
             continue
+        if label == "pinhole" and (why := _pinhole_misfit(fitted)):
+            skipped[label] = why
+            continue
         try:
             cv[label] = [float(v) for v in held_out_errors(sub, name, {**options[label], **fitted[label].fixed_options()},
                                                            folds)]
         except SlmlabError as exc:
             skipped[label] = f"not cross-validated: {exc.reason}"
     return cv
+
+
+def _pinhole_misfit(fitted: dict) -> str:
+    """Why the fitted pinhole pair does not describe the rig (:data:`PINHOLE_MISFIT`), or ``""``: its RMS
+    reprojection error per point (OpenCV's, both image coordinates) against the Soloff polynomials' residual
+    scatter per point (the root sum of squares of a camera's two coordinates, the larger camera)."""
+    if "soloff" not in fitted:
+        return ""
+    sigma = np.asarray(fitted["soloff"].calibration["image_residual_sigma_px"], float)
+    soloff_px = float(np.sqrt(np.maximum(sigma[0::2] ** 2 + sigma[1::2] ** 2, 0)).max())
+    pinhole_px = float(fitted["pinhole"].calibration["stereo_rms_px"])
+    if pinhole_px <= PINHOLE_MISFIT * soloff_px:
+        return ""
+    return (f"not cross-validated: it does not describe the rig (reprojection {pinhole_px:.3g} px per point against "
+            f"the soloff polynomials' {soloff_px:.3g} px)")
 
 
 def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped: dict) -> set[tuple[str, int]]:

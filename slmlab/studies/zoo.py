@@ -54,7 +54,8 @@ def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validati
     ``polynomial-d``), of the other ``models`` named (``pinhole-f``: the pinhole model started from the rig's
     true focal length) and of the true model on the same noisy centres (``floor``), in the design's frame net
     of one common offset. ``note``: the model's settings, or why it could not calibrate; ``chosen_for``: the
-    coordinates the default took from that candidate."""
+    coordinates the default took from that candidate; ``attrs["selection"]``: the default's evidence (its
+    model file's ``calibration.selection``)."""
     cal = simulate_design(rig, design, seed=seed)
     val = validation_set(rig, cal, n_validation, seed=seed + 1000)
     frame = design_frame(rig, design)
@@ -82,7 +83,9 @@ def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validati
         e = 1e3 * rms_after_offset(p - truth) if p is not None else np.full(3, np.nan)
         out.append({"rig": rig.preset, "design": design, "model": name, "X_um": e[0], "Y_um": e[1], "Z_um": e[2],
                     "note": note, "chosen_for": chosen})
-    return pd.DataFrame(out)
+    table = pd.DataFrame(out)
+    table.attrs["selection"] = default.calibration.get("selection", {})
+    return table
 
 
 def run_zoo(rigs, designs=tuple(DESIGNS), *, seed: int = 1, models=MODELS, n_validation: int = 1500) -> pd.DataFrame:
