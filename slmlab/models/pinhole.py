@@ -513,10 +513,17 @@ class PinholeModel(Model):
         Y, Z; a known target uses all its sequences as one view); ``f_guess_px`` defaults to ``L / pixel`` of a
         CMO microscope with a 300 mm perspective distance and 3 µm pixels (a known target: from its DLT);
         ``iterations`` caps each of OpenCV's fits on a known target or a Z stack (one 3D view)."""
+        try:
+            iterations = int(iterations) if float(iterations) == int(iterations) >= 1 else None
+        except (TypeError, ValueError, OverflowError):
+            iterations = None
+        if iterations is None:
+            raise SlmlabError("the pinhole option iterations must be a whole number of at least 1 (OpenCV's fits "
+                              "stop after that many steps)")
         with one_thread():  # (calibrate pins threads too; this covers a direct call of fit)
             if cal.known_target or _z_stack_only(cal):
                 return cls._fit_target(cal, variant=variant, stage_map=stage_map, fix_focal=fix_focal,
-                                       iterations=int(iterations))
+                                       iterations=iterations)
             return cls._fit(cal, variant=variant, stage_map=stage_map, views_from=views_from, fix_focal=fix_focal,
                             f_guess_px=f_guess_px)
 
