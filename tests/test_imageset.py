@@ -308,3 +308,15 @@ def test_a_plate_cut_on_both_sides_is_tracked_across_more_than_half_a_pitch(tmp_
     want = truth.set_index(["row", "col"])["w1"]
     assert len(got) >= 42 and np.abs(got - want.reindex(got.index)).max() < 0.5
 
+
+def test_a_plate_cut_by_a_glare_is_numbered_from_the_one_edge_the_image_shows_empty(moving_plate_images):
+    img, truth = moving_plate_images[0]
+    cut = img.copy()
+    pitch = float(np.median(np.diff(np.sort(truth.loc[truth["row"] == 1, "w1"]))))
+    x0, x1, y = truth["w1"].min(), truth["w1"].max() + pitch, truth["w2"].max() - 2 * pitch
+    cut[:, int(x0 - pitch / 2):int(x0 + pitch / 2)] = 255            # the first column lost in a glare
+    cut[int(y):, int(x1 - pitch / 2):int(x1 + pitch / 2)] = 255      # and two sites of the line beyond the last
+    dots = extract_image(cut, 7, 7)
+    assert dots.frame == "plate", dots.note
+    got = dots.table.merge(truth, on=["row", "col"], suffixes=("", "_true"))
+    assert len(got) == 42 and np.abs(got["w1"] - got["w1_true"]).max() < 0.5
