@@ -95,8 +95,7 @@ def stage_motion(numbered: list[Numbered], point_px, unit_mm: float) -> StageMot
 def _nearest_shift(f: np.ndarray, two_level: bool) -> np.ndarray:
     """The lattice shift nearest the fractional shift ``f`` ``(2,)``: integers, of even sum on a two-level
     plate (its dots are the nodes of even ``i1 + i2``)."""
-    base = np.floor(f).astype(int)
-    cands = base + np.array([(0, 0), (1, 0), (0, 1), (1, 1), (-1, 0), (0, -1), (2, 1), (1, 2)])
+    cands = np.floor(f).astype(int) + np.array([(0, 0), (1, 0), (0, 1), (1, 1)])   # the nearest is a corner
     if two_level:
         cands = cands[(cands.sum(axis=1) % 2) == 0]
     return cands[np.argmin(np.hypot(*(cands - f).T))]
