@@ -16,7 +16,9 @@ from slmlab.datasets import converters
 from slmlab.studies import workspace
 from slmlab.images.extract import extract_image
 from slmlab.images.dots import read_image
-from slmlab.images.imageset import extract_set
+from slmlab.images.imageset import TRACKED, extract_set
+from slmlab.images.lattice import fit_model, plate_lattice
+from slmlab.images.tracking import TRACK_UNCERTAINTY, Numbered, track
 from slmlab.virtual.render import board_orientation, render_board_set, render_plate
 from slmlab.virtual.sessions import Session, zstack_frame
 from slmlab.virtual.simulate import stage_origin
@@ -238,3 +240,83 @@ def test_a_virtual_charuco_stack_is_found_numbered_and_calibrates_to_the_floor(t
     ours = model.reconstruct(w) - truth
     rms = lambda e: np.sqrt(np.mean((e - e.mean(axis=0)) ** 2, axis=0))  # noqa: E731
     assert (rms(ours) <= 1.2 * rms(floor)).all(), (rms(ours), rms(floor))
+
+
+# ----------------------------------------------------------------------------------- tracking by the stage motion
+def _lattice_at(stage_mm, first=(0, 0), n=7):
+    """A :class:`PlateLattice` of a 7 × 7 plate seen at ``stage_mm``: (row, col) at ``O + (col − 1) u +
+    (row − 1) v + R s`` [px], R = 40 px / mm of Z along w1 (two thirds of a pitch), −25 along w2; indices
+    from ``first`` (each image numbers its own lattice from anywhere), and its map to (row, col)."""
+    u, v, rate = np.array([60.0, 2.0]), np.array([-2.0, 62.0]), np.array([[0.0, 0.0, 40.0], [0.0, 0.0, -25.0]])
+    r, c = np.meshgrid(np.arange(1, n + 1), np.arange(1, n + 1), indexing="ij")
+    r, c = r.ravel(), c.ravel()
+    w = np.array([500.0, 400.0]) + (c - 1)[:, None] * u + (r - 1)[:, None] * v + rate @ np.asarray(stage_mm, float)
+    ab = np.column_stack([c - 1 + first[0], r - 1 + first[1]])
+    pl = plate_lattice(fit_model(ab.astype(float), w), ab)
+    to_set = np.array([[0, 1, 1 - first[1]], [1, 0, 1 - first[0]]], float)   # (row, col) from (i1, i2)
+    return pl, to_set
+
+
+def test_an_image_is_tracked_by_the_stage_motion_across_more_than_half_a_pitch():
+    numbered = []
+    for z in (0.0, -1.0, -2.0):
+        pl, m = _lattice_at((0, 0, z), first=(int(3 * z), 5))
+        numbered.append(Numbered(f"Z {z}", np.array([0, 0, z]), pl, m))
+    target, truth = _lattice_at((0, 0, -3.0), first=(-4, 2))      # 0.67 pitch from the nearest along w1
+    shift, ref, how = track(target, (0, 0, -3.0), numbered[::-1], 0.3)
+    assert ref is numbered[-1] and "stage motion" in how
+    got = np.column_stack([target.i1 + shift[0], target.i2 + shift[1], np.ones(len(target.i1))]) @ ref.to_set.T
+    want = np.column_stack([target.i1, target.i2, np.ones(len(target.i1))]) @ truth.T
+    assert np.array_equal(got, want)
+
+
+def test_tracking_without_the_stage_motion_is_refused_not_guessed():
+    pl, m = _lattice_at((0, 0, 0.0))
+    target, _ = _lattice_at((0, 0, -1.0), first=(2, 2))
+    shift, ref, why = track(target, (0, 0, -1.0), [Numbered("Z 0", np.zeros(3), pl, m)], 0.3)
+    assert shift is None and ref is None and "TRACK_UNCERTAINTY" in why and "1 image(s)" in why
+    # two images along Z say nothing of a move along X
+    numbered = [Numbered(f"Z {z}", np.array([0, 0, z]), *_lattice_at((0, 0, z))) for z in (0.0, -1.0)]
+    shift, _, why = track(target, (0.5, 0, -1.0), numbered, 0.3)
+    assert shift is None and f"{0.5 / 0.3:.2f}" in why
+    assert TRACK_UNCERTAINTY < 0.5
+
+
+@pytest.fixture(scope="session")
+def moving_plate_images():
+    """Four positions of the 7 × 7 plate moved by two thirds of its pitch (0.2 mm) along X from one to the
+    next, with their truth; the stage table's X is the plate's move."""
+    m = slmlab.preset("paper")
+    return [render_plate(m, m.moving_plate, (0.2 * k, 0.0, 0.0), seed=k) for k in range(4)]
+
+
+def test_a_plate_cut_on_both_sides_is_tracked_across_more_than_half_a_pitch(tmp_path, moving_plate_images):
+    d = make_set(tmp_path / "set", moving_plate_images)
+    stage = (d / "stage.csv").read_text().splitlines()
+    stage = [stage[0]] + [f"Z,{k},{0.2 * (k - 1):g},0,0,cam/{k}_l.png,cam/{k}_r.png" for k in range(1, 5)]
+    (d / "stage.csv").write_text("\n".join(stage) + "\n")
+    img, truth = moving_plate_images[3]
+    cut = img.copy()
+    pitch = float(np.median(np.diff(np.sort(truth.loc[truth["row"] == 1, "w1"]))))
+    for x in (truth["w1"].min(), truth["w1"].max() + pitch):    # glare over the first column and beyond the last
+        cut[:, int(x - pitch / 2):int(x + pitch / 2)] = 255
+    for side, im in (("l", cut), ("r", np.roll(cut, 7, axis=1))):
+        write_image(d / "cam" / f"4_{side}.png", im)
+    pts, notes = extract_set(d, progress=False)
+    assert any(f"{TRACKED} (2)" in n for n in notes), notes
+    got = pts[pts["position"] == 4].set_index(["row", "col"])["wl1"]
+    want = truth.set_index(["row", "col"])["w1"]
+    assert len(got) >= 42 and np.abs(got - want.reindex(got.index)).max() < 0.5
+
+
+def test_a_plate_cut_by_a_glare_is_numbered_from_the_one_edge_the_image_shows_empty(moving_plate_images):
+    img, truth = moving_plate_images[0]
+    cut = img.copy()
+    pitch = float(np.median(np.diff(np.sort(truth.loc[truth["row"] == 1, "w1"]))))
+    x0, x1, y = truth["w1"].min(), truth["w1"].max() + pitch, truth["w2"].max() - 2 * pitch
+    cut[:, int(x0 - pitch / 2):int(x0 + pitch / 2)] = 255            # the first column lost in a glare
+    cut[int(y):, int(x1 - pitch / 2):int(x1 + pitch / 2)] = 255      # and two sites of the line beyond the last
+    dots = extract_image(cut, 7, 7)
+    assert dots.frame == "plate", dots.note
+    got = dots.table.merge(truth, on=["row", "col"], suffixes=("", "_true"))
+    assert len(got) == 42 and np.abs(got["w1"] - got["w1_true"]).max() < 0.5

@@ -364,7 +364,7 @@ def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *,
     triangle or a frame (an origin frame), or from the plate's size (:mod:`slmlab.images.lattice`). Returns
     the table (with ``row, col``, sorted, where anchored), the frame (``'plate'``, ``'origin'`` or ``None``),
     how it was anchored, why not, and the plate's window in ``i1, i2`` where its size numbered it. ``seen``:
-    where the image would show a dot (:func:`_seeable`)."""
+    where the image shows a lattice site empty (:func:`_site_evidence`)."""
     frame, how, note, window = None, "", "", None
     holes = table["marker"].to_numpy(bool)
     donuts = int(holes.sum())
@@ -465,14 +465,17 @@ def _table(loc: _Located, method: str, two_level: bool):
     return table, pl, dropped
 
 
-def _seeable(loc: _Located, table: pd.DataFrame, margin_px: float):
-    """``seen(points (n, 2) [px]) -> (n,)``: where this image would show a dot of the plate: at least
-    ``margin_px`` inside it, not saturated, on a background like the found dots' (within their range and
-    three robust spreads; a saturated glare or a camera's text strip is not) and no noisier than 1.5 times
-    theirs (window streaks or texture there may hide a dot from the sweep and the local search). An empty
-    plate line is evidence of the plate's edge only there."""
+def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
+    """``empty(points (n, 2) [px]) -> (n,)``: where this image shows that a lattice site holds no dot of the
+    plate (empty background, not a dot hidden): at least ``margin_px`` inside it, not saturated, on a
+    background like the found dots' (within their range and three robust spreads; a saturated glare or a
+    camera's text strip is not) and no noisier than 1.5 times theirs (window streaks or texture there may
+    hide a dot from the sweep and the local search), and no candidate blob of any kind within a third of a
+    pitch (a dot the lattice left off, too faint or pulled by a glare, is hidden, not absent). An empty
+    plate line is evidence of the plate's edge only at such sites."""
     con, shape = loc.con, loc.clean.shape
     top = float(np.max(loc.clean))
+    blobs = cKDTree(loc.cand.xy) if len(loc.cand) else None
 
     def reduced(p):
         r = np.rint(con.to_reduced(p)).astype(int)
@@ -482,13 +485,15 @@ def _seeable(loc: _Located, table: pd.DataFrame, margin_px: float):
     pad = 3 * 1.4826 * float(np.median(np.abs(bg - np.median(bg)))) + 3 * spread
     lo, hi = float(bg.min()) - pad, float(bg.max()) + pad
 
-    def seen(p: np.ndarray) -> np.ndarray:
+    def empty(p: np.ndarray) -> np.ndarray:
         ok = inside_image(p, shape, margin_px)
         y, x = reduced(p)
         level = -con.signed[y, x] if con.dark else con.signed[y, x]
+        if blobs is not None and len(p):
+            ok = ok & (blobs.query(p)[0] > loc.fit.pitch / 3)
         return (ok & (con.background[y, x] >= lo) & (con.background[y, x] <= hi) & (level < 0.98 * top)
                 & (con.spread[y, x] <= 1.5 * spread))
-    return seen
+    return empty
 
 
 def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px) -> ImageDots:
@@ -497,7 +502,7 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
     reason, markers = _candidate_reasons(loc.clean, loc.con, loc.cand, loc.fit)
     radius = dot_diameter_px / 2 if dot_diameter_px else _dot_radius(loc)
     src_all = table["_src"].to_numpy()
-    table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, seen=_seeable(loc, table, radius + 1),
+    table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, seen=_site_evidence(loc, table, radius + 1),
                                               **anchoring)
     outside = np.setdiff1d(src_all, table["_src"].to_numpy())
     dropped.update({int(k): "outside the plate (beyond its rows × cols)" for k in outside if k >= 0})

@@ -16,8 +16,10 @@ One numbering for the whole set
     The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
     ``cols`` are given and which is wholly in view is numbered by its size; a plate with markers by them (an
     L of donuts; a square and a triangle; a frame around the origin dot: :mod:`slmlab.images.lattice`);
-    a plate larger than the field whose markers an image does not show is **tracked** from the nearest
-    anchored image of the same view (a stack moves the plate little from one position to the next). A plate
+    an image that cannot be numbered alone (a plate larger than the field whose markers it does not show, a
+    plate cut on both sides) is **tracked**: the images of the same view numbered alone show how the plate
+    moves with the stage, which predicts its numbering (:mod:`slmlab.images.tracking`); where that
+    prediction is ambiguous the image is left out, and the notes say why. A plate
     anchored by an origin (markers) has no size: its dots are numbered from 1 over the whole set, and their
     positions in the plate's own frame are written as ``x_mm, y_mm, z_mm`` (a known-target set).
 
@@ -41,13 +43,14 @@ from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_cs
 from .boards import charuco_board, detect_board
 from .dots import read_image
 from .extract import IMAGE_NAME, ImageDots, choose_method, extract_image, report_summary
-from .lattice import PlateLattice
+from .tracking import Numbered, track
 
 __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePair", "image_pairs", "extract_set",
            "STAGE_FILE", "TRACKED"]
 
-#: how the notes name an image numbered by tracking from a neighbour (``... by TRACKED (k)``: k images)
-TRACKED = "tracked through the stack from a neighbouring image"
+#: how the notes name an image numbered by tracking (``... by TRACKED (k)``: k images;
+#: :mod:`slmlab.images.tracking`)
+TRACKED = "tracked by the stage motion from the images numbered alone"
 
 STAGE_FILE = "stage.csv"
 
@@ -223,41 +226,6 @@ def _integer_map(table: pd.DataFrame, src: tuple[str, str], dst: tuple[str, str]
     return m if np.allclose(a @ m.T, b) else None
 
 
-def _track(target: _Found, anchored: list[_Found]) -> tuple[np.ndarray, str] | None:
-    """Index the dots of an unanchored image from the nearest anchored image of the same view and plate: the
-    anchored image's lattice predicts where its nodes are; each dot of this image takes the nearest node
-    within a third of a step, and the most common index shift between the two lattices is the one."""
-    t = target.dots
-    if t.lattice is None or len(t.table) < 4:
-        return None
-    cands = [f for f in anchored if f.side == target.side and f.spec.name == target.spec.name]
-    cands.sort(key=lambda f: (f.pair.sequence != target.pair.sequence, abs(f.pair.position - target.pair.position)))
-    pts = t.table[["w1", "w2"]].to_numpy()
-    for f in cands[:4]:
-        pl: PlateLattice = f.dots.lattice
-        lo1, hi1 = pl.i1.min() - 3, pl.i1.max() + 4
-        lo2, hi2 = pl.i2.min() - 3, pl.i2.max() + 4
-        g1, g2 = np.meshgrid(np.arange(lo1, hi1), np.arange(lo2, hi2), indexing="ij")
-        g1, g2 = g1.ravel(), g2.ravel()
-        if pl.two_level:
-            keep = (g1 + g2) % 2 == 0
-            g1, g2 = g1[keep], g2[keep]
-        nodes = pl.predict(g1, g2)
-        step = np.median(np.hypot(*np.diff(pl.predict(np.array([0, 1]), np.array([0, 0])), axis=0).T))
-        d = np.hypot(pts[:, None, 0] - nodes[None, :, 0], pts[:, None, 1] - nodes[None, :, 1])
-        k = np.argmin(d, axis=1)
-        close = d[np.arange(len(pts)), k] < step / 3
-        if close.sum() < 4:
-            continue
-        shift = np.stack([g1[k] - t.table["i1"].to_numpy(), g2[k] - t.table["i2"].to_numpy()], axis=1)[close]
-        vals, counts = np.unique(shift, axis=0, return_counts=True)
-        best = vals[np.argmax(counts)]
-        if counts.max() < 0.6 * close.sum():
-            continue
-        return best, f"{f.path.name}"
-    return None
-
-
 def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | None = None
                 ) -> tuple[pd.DataFrame, list[str]]:
     """Extract every image of a set into the rows of ``points.csv`` (module docstring).
@@ -355,38 +323,68 @@ def _report_notes(found: list[_Found], notes: list) -> None:
                      f"{noise} one-level noise blobs and {hot} hot pixels ignored")
 
 
-def _number_unanchored(found: list[_Found], notes: list) -> None:
-    """Phase 2: images that could not be numbered alone are tracked from an anchored neighbour of the same
-    view (:func:`_track`); how each plate's numbering was anchored goes to the notes."""
-    anchored = [f for f in found if f.dots.frame is not None]
-    how: dict[str, dict[str, int]] = {}
+def _numbered_alone(found: list[_Found]) -> dict[tuple[str, str], list[Numbered]]:
+    """The images numbered alone (dot plates), per plate and view, as :class:`slmlab.images.tracking.Numbered`
+    (those whose lattice indices map to the numbering by an exact integer affine map)."""
+    out: dict[tuple[str, str], list[Numbered]] = {}
     for f in found:
+        if f.dots.frame is None or f.spec.pattern != "dots" or f.dots.lattice is None:
+            continue
+        m = _integer_map(f.dots.table, ("i1", "i2"), _SET_COLUMNS[f.dots.frame])
+        if m is not None:
+            out.setdefault((f.spec.name, f.side), []).append(Numbered(f.path.name, np.asarray(f.pair.stage_mm, float),
+                                                                      f.dots.lattice, m, f.dots.frame))
+    return out
+
+
+_SET_COLUMNS = {"origin": ("xu", "yu"), "plate": ("row", "col")}
+
+
+def _tracked_table(f: _Found, shift: np.ndarray, ref: Numbered) -> pd.DataFrame:
+    """``f``'s dots numbered by its lattice indices shifted by ``shift`` and ``ref``'s map to the set's
+    numbering."""
+    frame = ref.frame
+    t = f.dots.table.copy()
+    t["i1"] += shift[0]
+    t["i2"] += shift[1]
+    cols = _SET_COLUMNS[frame]
+    mapped = np.column_stack([t["i1"], t["i2"], np.ones(len(t))]) @ ref.to_set.T
+    t[cols[0]], t[cols[1]] = np.rint(mapped[:, 0]).astype(int), np.rint(mapped[:, 1]).astype(int)
+    if frame == "origin":
+        t["row"], t["col"] = -t["yu"], -t["xu"]
+        if f.spec.levels == 2:
+            t["level"] = (t["xu"] % 2).astype(int)
+    return t
+
+
+def _number_unanchored(found: list[_Found], notes: list) -> None:
+    """Phase 2: images that could not be numbered alone are tracked (:func:`slmlab.images.tracking.track`:
+    by the stage motion that the images of the same plate and view numbered alone show); an image whose
+    tracking is refused is left out, with why in the notes; how each plate's numbering was anchored goes to
+    the notes. Raises :class:`SlmlabError` where no image of a plate could be numbered alone."""
+    alone = _numbered_alone(found)
+    how: dict[str, dict[str, int]] = {}
+    for f in list(found):
         if f.dots.frame is not None:
             how.setdefault(f.spec.name, {}).setdefault(f.dots.how, 0)
             how[f.spec.name][f.dots.how] += 1
             continue
-        tracked = _track(f, anchored) if f.spec.pattern == "dots" else None
-        if tracked is None:
+        if not any(g.dots.frame is not None and g.spec.name == f.spec.name for g in found):
             raise SlmlabError(f"cannot number the dots of this image ({f.dots.note or 'no lattice'}; {f.pair.source}): "
                               "give the plate's rows and cols in meta.json if the whole plate is in view, use a plate "
                               "with markers, or image it beside an image that shows them", f.path)
-        shift, source = tracked
-        ref = next(g for g in anchored if g.path.name == source)
-        t = f.dots.table.copy()
-        t["i1"] += shift[0]
-        t["i2"] += shift[1]
-        cols = ("xu", "yu") if ref.dots.frame == "origin" else ("row", "col")
-        m = _integer_map(ref.dots.table, ("i1", "i2"), cols)
-        if m is None:
-            raise SlmlabError(f"cannot number the dots of this image: its neighbour {source} has too few dots to "
-                              "track from; use a plate with markers", f.path)
-        mapped = np.column_stack([t["i1"], t["i2"], np.ones(len(t))]) @ m.T
-        t[cols[0]], t[cols[1]] = mapped[:, 0].astype(int), mapped[:, 1].astype(int)
-        if ref.dots.frame == "origin":
-            t["row"], t["col"] = -t["yu"], -t["xu"]
-            if f.spec.levels == 2:
-                t["level"] = (t["xu"] % 2).astype(int)
-        f.dots.table, f.dots.frame, f.dots.how = t, ref.dots.frame, f"tracked from {source}"
+        refs = sorted(alone.get((f.spec.name, f.side), []) if f.spec.pattern == "dots" else [],
+                      key=lambda n: float(np.linalg.norm(n.stage_mm - np.asarray(f.pair.stage_mm, float))))
+        shift, ref, why = (None, None, f"no {_VIEW[f.side]} image of plate {f.spec.name} was numbered alone"
+                           ) if not refs or f.dots.lattice is None else track(f.dots.lattice, f.pair.stage_mm, refs,
+                                                                              f.spec.unit_mm)
+        if shift is None:
+            notes.append(f"{f.pair.sequence} position {f.pair.position}, {_VIEW[f.side]} view ({f.path.name}): "
+                         f"left unnumbered ({f.dots.note or 'no lattice'}) and not tracked: {why}")
+            found.remove(f)
+            continue
+        f.dots.table, f.dots.frame = _tracked_table(f, shift, ref), ref.frame
+        f.dots.how = f"tracked from {ref.name} {why}"
         how.setdefault(f.spec.name, {}).setdefault(TRACKED, 0)
         how[f.spec.name][TRACKED] += 1
     for name, kinds in how.items():

@@ -13,10 +13,10 @@
 2. **Plate units** (:func:`plate_lattice`, :class:`PlateLattice`): ``i1`` along the lattice axis nearer
    ``+w1``, ``i2`` along the one nearer ``+w2``; on a two-level plate half pitches along the plate's axes.
 3. **Absolute indices**: from the plate's size (:func:`number_plate`: the window of ``rows × cols`` lines
-   holding most dots, without a line that would be wholly in the image yet empty), or from markers (an L of
+   holding most dots, without a line the image shows empty: :data:`EDGE_SITES`), or from markers (an L of
    donuts as on DICe targets, :func:`donut_indices`; a square and a triangle as on stereo-PIV plates, or a
-   frame around the origin dot, :func:`origin_frame`). Images that cannot be anchored alone are anchored from
-   a neighbouring image of the same view by :mod:`slmlab.images.imageset`.
+   frame around the origin dot, :func:`origin_frame`). Images that cannot be anchored alone are tracked from
+   the images of the same view that were, by the stage motion (:mod:`slmlab.images.tracking`).
 """
 
 from __future__ import annotations
@@ -503,12 +503,20 @@ def plate_lattice(model: LatticeModel, ab: np.ndarray, *, two_level: bool = Fals
     return PlateLattice(i[:, 0].astype(int), i[:, 1].astype(int), two_level, model, m)
 
 
+#: an empty plate line is evidence of the plate's edge where the image shows this many of its sites empty
+#: (all of them on a shorter line): a glare may hide the rest of a real edge line, and a line of hidden dots
+#: shows none of its sites empty (its dots are candidates, or the image there is unlike the plate's)
+EDGE_SITES = 3
+
+
 def _line_seen(pl: PlateLattice, axis: int, k: int, other: tuple[int, int], seen) -> bool:
-    """Whether the whole plate line ``i[axis] = k`` (``other``: the range of the other index) is where the image
-    would show a dot (``seen``): a line that would be seen but holds no dot is not part of the plate."""
+    """Whether the plate line ``i[axis] = k`` (``other``: the range of the other index) is shown empty by the
+    image (``seen``: where a site is seen to hold no dot) at :data:`EDGE_SITES` of its sites at least (all
+    of a shorter line): a line that is seen empty is not part of the plate."""
     o = np.arange(other[0], other[1] + 1)
     k = np.full(len(o), k)
-    return bool(seen(pl.predict(k, o) if axis == 0 else pl.predict(o, k)).all())
+    shown = seen(pl.predict(k, o) if axis == 0 else pl.predict(o, k))
+    return int(shown.sum()) >= min(EDGE_SITES, len(o))
 
 
 def _window(pl: PlateLattice, n: int, axis: int, seen) -> tuple[int | None, str]:
@@ -536,8 +544,9 @@ def _window(pl: PlateLattice, n: int, axis: int, seen) -> tuple[int | None, str]
 def number_plate(pl: PlateLattice, rows: int, cols: int, seen):
     """Plate ``[row, col]`` (1-based) of the dots of a plate of ``rows × cols`` (whole in view, or cut by the
     image; any dots lost): ``col`` along ``i1`` unless the lattice fits the plate only the other way round (a
-    non-square plate turned by 90°). ``seen(points (n, 2) [px])``: where the image would show a dot (inside it,
-    and not lost in a saturated or otherwise unlike region): an empty line there is evidence, elsewhere not.
+    non-square plate turned by 90°). ``seen(points (n, 2) [px])``: where the image shows a site empty (inside
+    it, not lost in a saturated or otherwise unlike region, no blob there): an empty line seen so at
+    :data:`EDGE_SITES` sites is evidence of the plate's edge, elsewhere not.
     Returns ``(row, col)`` (``None`` if ambiguous), a mask of the dots inside the plate, a note (why not, or
     how), and the plate's window ``(i1 min, i1 max, i2 min, i2 max)``."""
     i = np.column_stack([pl.i1, pl.i2])
