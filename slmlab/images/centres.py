@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.special import erfc
 
 from .dots import as_float, gather_patches
 
@@ -30,7 +31,10 @@ __all__ = ["METHODS", "SECTORS", "Flat", "flatten", "profile_radius", "dot_reach
            "refine_ellipse", "refine_edges", "refine"]
 
 #: the centre estimators, by name
-METHODS = ("moments", "ellipse", "edges")
+METHODS = ("moments", "ellipse", "edges", "fit")
+#: the columns around the dots are flat-fielded one by one (window streaks, :func:`streaky`) above this
+#: mean square of their offsets over its noise expectation
+STREAKINESS = 4.0
 #: angular sectors of a dot's outline in :func:`refine_edges` (the outermost crossing of each is used)
 SECTORS = 64
 
@@ -39,16 +43,23 @@ SECTORS = 64
 class Flat:
     """Flat-fielded contrast patches ``±(1 − I/B)`` around integer centres ``base``; ``B`` is a plane
     (coefficients ``coef`` on offsets ``ox, oy``) fitted on a ring of integer offsets, the same ring for all
-    dots, so one pseudo-inverse serves the whole image."""
+    dots, so one pseudo-inverse serves the whole image; with ``columns``, plus each column's mean offset from
+    the plane outside the dot (``column`` ``(n, S)`` [grey levels]: window streaks). ``streakiness`` ``(n,)``:
+    the mean square of those column offsets over their noise variance (about 1 without streaks)."""
 
     base: np.ndarray
     ox: np.ndarray
     oy: np.ndarray
     contrast: np.ndarray
     coef: np.ndarray
+    column: np.ndarray | None = None
+    streakiness: np.ndarray | None = None
 
 
-def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool) -> Flat:
+def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: bool = False) -> Flat:
+    """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
+    ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, plus per column the mean offset from it of
+    the pixels outside ``ring_in`` to the patch's edge: window streaks run along the columns)."""
     half = int(np.ceil(ring_in + 5))
     p, base = gather_patches(img, centres, half)
     p = p.astype(np.float32)
@@ -58,8 +69,24 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool) ->
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    contrast = _contrast(p, _plane(coef, ox[None], oy[None]), dark)
-    return Flat(base, ox, oy, contrast, coef)
+    background = _plane(coef, ox[None], oy[None])
+    column, chi = _columns(p - background, (d > ring_in) & (d <= half)) if columns else (None, None)
+    if column is not None:
+        background = background + column[:, None, :]
+    return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi)
+
+
+def _columns(res: np.ndarray, outside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each column's mean of the residuals ``res`` ``(n, S, S)`` over the pixels ``outside`` ``(S, S)`` the dot
+    [grey levels], and per patch the mean square of those means over their variance from the residuals'
+    robust spread (about 1 if the columns differ by noise alone)."""
+    k = outside.sum(axis=0).astype(np.float32)                                # pixels per column
+    mean = (res * outside).sum(axis=1) / np.maximum(k, 1)
+    v = res[:, outside]
+    sigma2 = (1.4826 * np.median(np.abs(v - np.median(v, axis=1, keepdims=True)), axis=1)) ** 2 + 1e-12
+    use = k >= 4
+    chi = (mean[:, use] ** 2 * k[use]).mean(axis=1) / sigma2
+    return np.where(use, mean, 0.0).astype(np.float32), chi
 
 
 def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
@@ -87,17 +114,18 @@ def profile_radius(flat: Flat, radius: float) -> float:
 
 
 def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   iterations: int = 3, reach: float | None = None) -> np.ndarray:
+                   iterations: int = 3, reach: float | None = None, columns: bool = False) -> np.ndarray:
     """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
 
     ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
-    centre. The window is an anti-aliased disk reaching 1.5 px beyond where the dots' mean radial profile
-    falls to 2 % of its peak, re-centred on the estimate each iteration. Returns ``(n, 2)`` [px].
+    centre (with ``columns``, each column flat-fielded too: :func:`flatten`). The window is an anti-aliased
+    disk reaching 1.5 px beyond where the dots' mean radial profile falls to 2 % of its peak, re-centred on
+    the estimate each iteration. Returns ``(n, 2)`` [px].
     """
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
     disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5  # the window never reaches beyond (|c - base| <= 0.5)
     ox, oy = flat.ox[disk], flat.oy[disk]
     con = flat.contrast[:, disk]
@@ -124,7 +152,8 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   rays: int = 48, iterations: int = 2, reach: float | None = None) -> np.ndarray:
+                   rays: int = 48, iterations: int = 2, reach: float | None = None, columns: bool = False
+                   ) -> np.ndarray:
     """Sub-pixel centres from an ellipse fitted to the half-contrast crossings along ``rays`` rays.
 
     The contrast ``1 − I/B`` is flat-fielded as in :func:`refine_moments`; along each ray the first
@@ -135,7 +164,7 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     if len(c) == 0:
         return c
     r = float(np.median(radii))
-    flat, reach = flat_patches(img, c, radii, dark, reach)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
     img = as_float(img)  # once, for the samples of every iteration
     t = np.linspace(0, 2 * np.pi, rays, endpoint=False)
     steps = np.linspace(0.0, 1.0, 96)
@@ -146,7 +175,10 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     for _ in range(iterations):
         f = c - flat.base
         vals = _bilinear(img, c[:, 0, None, None] + ox, c[:, 1, None, None] + oy)
-        con = _contrast(vals, _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None]), dark)
+        bg = _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None])
+        if flat.column is not None:   # the columns' offsets, linearly between the pixels' columns
+            bg = bg + _column_at(flat.column, np.broadcast_to(ox + f[:, 0, None, None], bg.shape))
+        con = _contrast(vals, bg, dark)
         level = 0.5 * np.median(con[:, :, :core], axis=(1, 2))
         below = con < level[:, None, None]
         below[:, :, 0] = False
@@ -159,6 +191,17 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
         rr = (steps[k1] + frac * (steps[1] - steps[0])) * reach
         c = c + _ellipse_centres(np.cos(t)[None, :] * rr, np.sin(t)[None, :] * rr, ok)
     return c
+
+
+def _column_at(column: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Column offsets ``(n, S)`` (:attr:`Flat.column`, columns at offsets ``−S//2 … S//2``) at offsets ``x``
+    ``(n, ...)`` [px], linearly interpolated (replicated beyond)."""
+    s = column.shape[1]
+    u = np.clip(x + s // 2, 0, s - 1.000001).reshape(len(x), -1)
+    i = np.floor(u).astype(int)
+    t = u - i
+    v = np.take_along_axis(column, i, axis=1) * (1 - t) + np.take_along_axis(column, i + 1, axis=1) * t
+    return v.reshape(x.shape)
 
 
 def _ellipse_centres(x: np.ndarray, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -248,15 +291,23 @@ def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: boo
     return min(profile_radius(flatten(img, sample, 1.6 * r + 4, dark), r) + 1.5, 1.6 * r + 3)
 
 
-def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None):
-    """Flat-fielded contrast patches (:func:`flatten`) on a ring just outside the dots' reach, measured by
-    :func:`dot_reach` unless given [px]; and the reach."""
+def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None,
+                 columns: bool = False):
+    """Flat-fielded contrast patches (:func:`flatten`, ``columns`` too) on a ring just outside the dots'
+    reach, measured by :func:`dot_reach` unless given [px]; and the reach."""
     reach = dot_reach(img, centres, radii, dark) if reach is None else reach
-    return flatten(img, centres, reach + 1, dark), reach
+    return flatten(img, centres, reach + 1, dark, columns), reach
+
+
+def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
+    """Whether window streaks cross the dots: the columns around (at most 16 of) them differ by more than
+    noise, their median :attr:`Flat.streakiness` above :data:`STREAKINESS` (a flat background gives about 1)."""
+    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 16)).astype(int)]
+    return bool(np.median(flatten(img, sample, reach + 1, dark, columns=True).streakiness) > STREAKINESS)
 
 
 def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                 iterations: int = 1, reach: float | None = None) -> np.ndarray:
+                 iterations: int = 1, reach: float | None = None, columns: bool = False) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] from a conic fitted to the dots' half-contrast crossings.
 
     The contrast is flat-fielded (:func:`flatten`: a plane fitted per dot on a ring outside the dot and its
@@ -270,11 +321,11 @@ def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dar
     dot's outline (noise in the background and texture or streaks across the dot pull it less than a
     centroid), but it takes every crossing on the pixel grid instead of 48 interpolated rays: as accurate
     on the rendered family and about ten times faster. ``reach`` [px]: the dots' reach if known
-    (:func:`dot_reach`)."""
+    (:func:`dot_reach`); ``columns``: each column flat-fielded too (window streaks, :func:`flatten`)."""
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
     r = float(np.median(radii))
     core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
     level = 0.5 * np.median(flat.contrast[:, core], axis=1)
@@ -311,17 +362,152 @@ def _best_per_sector(k: np.ndarray, angle: np.ndarray, score: np.ndarray, sector
     return np.sort(order[first])
 
 
+# ------------------------------------------------------------------------------------------ model fit
+#: the fitted dot model's non-linear parameters: centre ``cx, cy`` [px], the symmetric matrix ``s11, s12, s22``
+#: [1/px] that maps an offset from the centre onto the unit circle (the outline), the blur ``w`` [radii];
+#: then the linear ones: the background's quadratic surface (6) and the dot's depth, a plane (3) [grey levels]
+FIT_NONLINEAR = 6
+FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
+
+
+def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobian: bool = True
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+    """A blurred elliptical dot on a curved background, ``I = B(x, y) + A(x, y)·Φ((1 − q)/w)``, at offsets
+    ``x, y`` ``(P,)`` [px] for parameters ``theta`` ``(n, 15)`` (:data:`FIT_NONLINEAR`): ``q = |S (x − c)|`` (1 on
+    the outline), ``Φ`` the normal CDF (a blurred edge), ``B`` a quadratic and ``A`` a plane in ``x/h, y/h``
+    [grey levels]. Returns the values ``(n, P)`` and, with ``jacobian``, their Jacobian ``(n, P, 15)``."""
+    cx, cy, s11, s12, s22, w = (theta[:, k, None] for k in range(FIT_NONLINEAR))
+    ux, uy = x[None] - cx, y[None] - cy
+    v1, v2 = s11 * ux + s12 * uy, s12 * ux + s22 * uy
+    q = np.sqrt(v1 * v1 + v2 * v2) + 1e-9
+    t = (1.0 - q) / w
+    dot = 0.5 * erfc(-t / np.sqrt(2.0))
+    xs, ys = x / h, y / h
+    surface = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys])         # (6, P)
+    a = theta[:, FIT_NONLINEAR + 6:] @ surface[:3]                                     # the depth A (n, P)
+    value = theta[:, FIT_NONLINEAR:FIT_NONLINEAR + 6] @ surface + a * dot
+    if not jacobian:
+        return value, None
+    g = a * np.exp(-0.5 * t * t) / (np.sqrt(2 * np.pi) * w)                           # −dI/dq
+    gq = g / q
+    cols = [gq * (v1 * s11 + v2 * s12), gq * (v1 * s12 + v2 * s22), -gq * v1 * ux, -gq * (v1 * uy + v2 * ux),
+            -gq * v2 * uy, -g * t]
+    jac = np.empty(value.shape + (FIT_PARAMETERS,))
+    for k, col in enumerate(cols + list(surface) + [dot * s for s in surface[:3]]):
+        jac[..., k] = col
+    return value, jac
+
+
+def _fit_start(p: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, weight: np.ndarray, centre: np.ndarray,
+               radius: float, blur: float) -> np.ndarray:
+    """Starting parameters ``(n, 15)``: the outline a circle of ``radius`` [px] at ``centre`` (offsets, [px])
+    blurred by ``blur`` [px]; the linear parameters by weighted least squares for that outline."""
+    n = len(p)
+    theta = np.zeros((n, FIT_PARAMETERS))
+    theta[:, :2] = centre
+    theta[:, 2] = theta[:, 4] = 1.0 / radius
+    theta[:, 5] = blur / radius
+    _, jac = _dot_model(theta, x, y, h)
+    lin = jac[..., FIT_NONLINEAR:] * weight[..., None]
+    lt = lin.transpose(0, 2, 1)
+    ata = lt @ jac[..., FIT_NONLINEAR:] + 1e-9 * np.eye(FIT_PARAMETERS - FIT_NONLINEAR)
+    theta[:, FIT_NONLINEAR:] = np.linalg.solve(ata, lt @ p[..., None])[..., 0]
+    return theta
+
+
+def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Weighted residuals ``(n, P)``, Jacobian (with ``jacobian``) and cost ``(n,)`` of :func:`_dot_model`
+    against patches ``p``; a ``censored`` (saturated) pixel counts only where the model is below it."""
+    value, jac = _dot_model(theta, x, y, h, jacobian)
+    r = value - p
+    wt = np.where(censored & (r > 0), 0.0, weight)
+    if jac is not None:
+        jac *= wt[..., None]
+    return r * wt, jac, np.einsum("np,np->n", r * wt, r)
+
+
+def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, start: np.ndarray, radius: float,
+             blur: float, censored: np.ndarray, iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt fits of :func:`_dot_model` to patches ``p`` ``(n, P)`` at offsets ``x, y`` [px] with
+    pixel ``weight`` ``(P,)``, all dots at once (one 15 × 15 system per dot and iteration), from the circle of
+    ``radius`` and ``blur`` [px] at ``start`` ``(n, 2)`` [px]; ``censored`` ``(n, P)`` pixels (saturated) count only
+    where the model is below them. Returns
+    the parameters ``(n, 15)`` and whether each fit converged to a dot (a finite, positive-definite outline
+    within 2 px of the start)."""
+    h = float(np.abs(x).max())
+    w = np.broadcast_to(weight, p.shape)
+    theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur)
+    lam = np.full(len(p), 1e-3)
+    r, jac, cost = _fit_cost(theta, p, x, y, h, w, censored)
+    for it in range(iterations):
+        jt = jac.transpose(0, 2, 1)
+        jtj = jt @ jac                                                             # batched BLAS
+        diag = np.einsum("nkk->nk", jtj) + 1e-12
+        step = np.linalg.solve(jtj + lam[:, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
+                               -(jt @ r[..., None]))[..., 0]
+        trial = _fit_cost(theta + step, p, x, y, h, w, censored, jacobian=False)[2]
+        better = np.isfinite(trial) & (trial < cost)
+        theta[better] += step[better]
+        lam = np.where(better, lam / 3, lam * 4)
+        if it >= 2 and not (better & (np.abs(step[:, :2]).max(axis=1) > 1e-4)).any():
+            break                                  # no centre moves by more than 1e-4 px
+        r, jac, cost = _fit_cost(theta, p, x, y, h, w, censored)
+    s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
+    ok = (np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
+          & (np.hypot(*(theta[:, :2] - start).T) < 2.0))
+    return theta, ok
+
+
+def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
+               iterations: int = 12, reach: float | None = None, columns: bool = False) -> np.ndarray:
+    """Sub-pixel centres ``(n, 2)`` [px] by a least-squares fit of a model of the dot and its background to
+    the pixels within the dots' reach + 2 px (:func:`fit_dots`, :func:`_dot_model`): a blurred ellipse whose
+    depth varies as a plane on a quadratic background, started from the :func:`refine_moments` centre.
+
+    The model-fitting centre of photogrammetry's targets (e.g. Luhmann et al., *Close-Range Photogrammetry
+    and 3D Imaging*, 2019, §5.4.2.6, template least-squares matching). Where the background is not flat under
+    a dot (a steep out-of-focus bright region beside it, a curved one) the fitted surface follows it, where a
+    ring outside the dot only extrapolates a plane; pixels at the image's highest value are censored (a dot
+    whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
+    divided by its columns' gain (window streaks, :func:`flatten`). A fit that fails (not finite, not an
+    ellipse, more than 2 px from the start) keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`."""
+    c = np.asarray(centres, float).copy()
+    if len(c) == 0:
+        return c
+    reach = dot_reach(img, c, radii, dark) if reach is None else reach
+    start = refine_moments(img, c, radii, dark=dark, reach=reach, columns=columns)
+    half = int(np.ceil(reach + 2))
+    p, base = gather_patches(img, start, half)
+    p = p.astype(np.float64)
+    censored = p >= float(img.max())
+    if columns:   # the columns' gain around each dot (the plane plus the column offsets, over the plane)
+        flat = flatten(img, start, reach + 1, dark, columns=True)
+        k = flat.ox.shape[0] // 2 - half
+        col = flat.column[:, k:k + 2 * half + 1]
+        level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
+        p = p / (1.0 + col / level)[:, None, :]
+    off = np.arange(-half, half + 1, dtype=np.float64)
+    oy, ox = np.meshgrid(off, off, indexing="ij")
+    disk = np.hypot(ox, oy) <= reach + 2
+    r = float(np.median(radii))
+    theta, ok = fit_dots(p[:, disk], ox[disk], oy[disk], np.ones(int(disk.sum())), start - base, r,
+                         max(0.5 * (reach - 1.5 - r), 0.7), censored[:, disk], iterations)
+    return np.where(ok[:, None], base + theta[:, :2], start)
+
+
 def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool, method: str) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured
-    once (:func:`dot_reach`); dots that moved more than two pixels from ``centres`` (a coarse first guess)
-    are refined again from where they moved to, flat-fielded on a ring around their new place."""
+    once (:func:`dot_reach`) and whether window streaks cross them (:func:`streaky`: then every column is
+    flat-fielded); dots that moved more than two pixels from ``centres`` (a coarse first guess) are refined
+    again from where they moved to, flat-fielded on a ring around their new place."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return c.reshape(0, 2).copy()
-    fn = {"moments": refine_moments, "ellipse": refine_ellipse, "edges": refine_edges}[method]
+    fn = {"moments": refine_moments, "ellipse": refine_ellipse, "edges": refine_edges, "fit": refine_fit}[method]
     reach = dot_reach(img, c, radii, dark)
-    xy = fn(img, c, radii, dark=dark, reach=reach)
+    columns = streaky(img, c, radii, dark, reach)
+    xy = fn(img, c, radii, dark=dark, reach=reach, columns=columns)
     again = np.hypot(*(xy - c).T) > 2.0
     if again.any():
-        xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach)
+        xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach, columns=columns)
     return xy
