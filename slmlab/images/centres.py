@@ -1,8 +1,10 @@
-"""Sub-pixel centres of a plate's dots (the paper's §3 input), three estimators on flat-fielded patches.
+"""Sub-pixel centres of a plate's dots (the paper's §3 input), four estimators on flat-fielded patches.
 
 Each dot's patch is flat-fielded by a background plane fitted on a ring outside the dot and its blur
 (:func:`flatten`), so that vignetting, a gradient or a bright region beside the dot does not pull its
-centre; how far the blurred dots reach is measured once per image on a sample of them (:func:`dot_reach`).
+centre; where window streaks cross the image's dots (:func:`streaky`) each column of the patch is flat-fielded too,
+by its own offset from the plane outside the dot. How far the blurred dots reach is measured once per image
+on a sample of them (:func:`dot_reach`).
 
 * ``moments`` (:func:`refine_moments`): intensity-weighted centroid of the flat-fielded contrast inside an
   anti-aliased circular window, re-centred each iteration. Uses every pixel of the dot and its blur: the most
@@ -12,10 +14,13 @@ centre; how far the blurred dots reach is measured once per image on a sample of
   in each of :data:`SECTORS` directions fitted by a conic twice without outliers: the outline seen from
   outside, so a textured or streaked dot, a hot speck or a donut's hole does not pull it; as accurate as
   ``ellipse`` or more and several times faster.
+* ``fit`` (:func:`refine_fit`): a model of the dot (a blurred ellipse whose depth varies as a plane) on a
+  quadratic background, fitted by least squares to every pixel within the dot's reach, saturated pixels
+  censored: where the background is not flat under the dot (a steep bright region beside it, saturation
+  around it) it follows the background the others extrapolate from a ring; ten times slower.
 
 :func:`refine` applies one of them by name, and refines again the dots that moved far from their first
-guess (a coarse position from the local search).
-"""
+guess (a coarse position from the local search)."""
 
 from __future__ import annotations
 
@@ -27,14 +32,22 @@ from scipy.special import erfc
 
 from .dots import as_float, gather_patches
 
-__all__ = ["METHODS", "SECTORS", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "refine_moments",
+__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS", "Flat", "flatten", "profile_radius",
+           "dot_reach", "flat_patches", "streaky", "refine_moments", "fit_dots", "refine_fit",
            "refine_ellipse", "refine_edges", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit")
-#: the columns around the dots are flat-fielded one by one (window streaks, :func:`streaky`) above this
-#: mean square of their offsets over its noise expectation
-STREAKINESS = 4.0
+#: the columns around a dot are flat-fielded one by one (window streaks, :func:`flatten`) above this mean
+#: square of their offsets over its noise expectation (a flat background: 0.5-1; window streaks across the
+#: dot: 3-20 on the rendered zoo)
+STREAKINESS = 2.0
+#: ... and the columns' offsets above the dot correlate with those below it by more than this (window streaks
+#: on the rendered zoo: a median 0.6-1.0; real plates' texture, JPEG blocks and neighbours: 0.0-0.4)
+COHERENCE = 0.8
+#: ... on an image where at least this share of the dots is so crossed (:func:`streaky`; the rendered zoo's
+#: streaks: 0.25-0.8 of the dots; real plates: up to 0.05, dots by a dust line or the image's edge)
+STREAK_SHARE = 0.1
 #: angular sectors of a dot's outline in :func:`refine_edges` (the outermost crossing of each is used)
 SECTORS = 64
 
@@ -44,8 +57,10 @@ class Flat:
     """Flat-fielded contrast patches ``±(1 − I/B)`` around integer centres ``base``; ``B`` is a plane
     (coefficients ``coef`` on offsets ``ox, oy``) fitted on a ring of integer offsets, the same ring for all
     dots, so one pseudo-inverse serves the whole image; with ``columns``, plus each column's mean offset from
-    the plane outside the dot (``column`` ``(n, S)`` [grey levels]: window streaks). ``streakiness`` ``(n,)``:
-    the mean square of those column offsets over their noise variance (about 1 without streaks)."""
+    the plane outside the dot (``column`` ``(n, S)`` [grey levels]: window streaks) where the dot's
+    ``streakiness`` ``(n,)``, the mean square of those offsets over their noise variance (about 1 or less
+    without streaks), is above :data:`STREAKINESS` and their ``coherence`` ``(n,)``, the correlation of
+    the offsets above the dot with those below it, above :data:`COHERENCE` (else zero)."""
 
     base: np.ndarray
     ox: np.ndarray
@@ -54,12 +69,14 @@ class Flat:
     coef: np.ndarray
     column: np.ndarray | None = None
     streakiness: np.ndarray | None = None
+    coherence: np.ndarray | None = None
 
 
 def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: bool = False) -> Flat:
     """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
     ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, plus per column the mean offset from it of
-    the pixels outside ``ring_in`` to the patch's edge: window streaks run along the columns)."""
+    the pixels outside ``ring_in`` to the patch's edge, where they differ by more than noise: window streaks
+    run along the columns)."""
     half = int(np.ceil(ring_in + 5))
     p, base = gather_patches(img, centres, half)
     p = p.astype(np.float32)
@@ -70,23 +87,31 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
     background = _plane(coef, ox[None], oy[None])
-    column, chi = _columns(p - background, (d > ring_in) & (d <= half)) if columns else (None, None)
+    column, chi, rho = _columns(p - background, (d > ring_in) & (d <= half), oy) if columns else (None,) * 3
     if column is not None:
+        column[(chi <= STREAKINESS) | (rho <= COHERENCE)] = 0.0
         background = background + column[:, None, :]
-    return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi)
+    return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi, rho)
 
 
-def _columns(res: np.ndarray, outside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _columns(res: np.ndarray, outside: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each column's mean of the residuals ``res`` ``(n, S, S)`` over the pixels ``outside`` ``(S, S)`` the dot
-    [grey levels], and per patch the mean square of those means over their variance from the residuals'
-    robust spread (about 1 if the columns differ by noise alone)."""
+    [grey levels]; per patch the mean square of those means over their variance from the residuals' robust
+    spread (about 1 if the columns differ by noise alone), and the correlation of the columns' means above
+    the dot (``oy < 0``) with those below it (a streak runs through both; texture and noise do not)."""
     k = outside.sum(axis=0).astype(np.float32)                                # pixels per column
     mean = (res * outside).sum(axis=1) / np.maximum(k, 1)
     v = res[:, outside]
     sigma2 = (1.4826 * np.median(np.abs(v - np.median(v, axis=1, keepdims=True)), axis=1)) ** 2 + 1e-12
     use = k >= 4
     chi = (mean[:, use] ** 2 * k[use]).mean(axis=1) / sigma2
-    return np.where(use, mean, 0.0).astype(np.float32), chi
+    halves = []
+    for side in (outside & (oy < 0), outside & (oy > 0)):
+        m = ((res * side).sum(axis=1) / np.maximum(side.sum(axis=0), 1))[:, use]
+        halves.append(m - m.mean(axis=1, keepdims=True))
+    up, down = halves
+    rho = (up * down).sum(axis=1) / np.sqrt((up * up).sum(axis=1) * (down * down).sum(axis=1) + 1e-12)
+    return np.where(use, mean, 0.0).astype(np.float32), chi, rho
 
 
 def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
@@ -299,12 +324,6 @@ def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
     return flatten(img, centres, reach + 1, dark, columns), reach
 
 
-def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
-    """Whether window streaks cross the dots: the columns around (at most 16 of) them differ by more than
-    noise, their median :attr:`Flat.streakiness` above :data:`STREAKINESS` (a flat background gives about 1)."""
-    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 16)).astype(int)]
-    return bool(np.median(flatten(img, sample, reach + 1, dark, columns=True).streakiness) > STREAKINESS)
-
 
 def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
                  iterations: int = 1, reach: float | None = None, columns: bool = False) -> np.ndarray:
@@ -375,7 +394,7 @@ def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobi
     """A blurred elliptical dot on a curved background, ``I = B(x, y) + A(x, y)·Φ((1 − q)/w)``, at offsets
     ``x, y`` ``(P,)`` [px] for parameters ``theta`` ``(n, 15)`` (:data:`FIT_NONLINEAR`): ``q = |S (x − c)|`` (1 on
     the outline), ``Φ`` the normal CDF (a blurred edge), ``B`` a quadratic and ``A`` a plane in ``x/h, y/h``
-    [grey levels]. Returns the values ``(n, P)`` and, with ``jacobian``, their Jacobian ``(n, P, 15)``."""
+    [grey levels]. Returns the values ``(n, P)`` and, with ``jacobian``, their Jacobian ``(n, 15, P)``."""
     cx, cy, s11, s12, s22, w = (theta[:, k, None] for k in range(FIT_NONLINEAR))
     ux, uy = x[None] - cx, y[None] - cy
     v1, v2 = s11 * ux + s12 * uy, s12 * ux + s22 * uy
@@ -392,9 +411,9 @@ def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobi
     gq = g / q
     cols = [gq * (v1 * s11 + v2 * s12), gq * (v1 * s12 + v2 * s22), -gq * v1 * ux, -gq * (v1 * uy + v2 * ux),
             -gq * v2 * uy, -g * t]
-    jac = np.empty(value.shape + (FIT_PARAMETERS,))
+    jac = np.empty((len(value), FIT_PARAMETERS, value.shape[1]))                  # parameters before pixels
     for k, col in enumerate(cols + list(surface) + [dot * s for s in surface[:3]]):
-        jac[..., k] = col
+        jac[:, k] = col
     return value, jac
 
 
@@ -408,10 +427,10 @@ def _fit_start(p: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, weight: np
     theta[:, 2] = theta[:, 4] = 1.0 / radius
     theta[:, 5] = blur / radius
     _, jac = _dot_model(theta, x, y, h)
-    lin = jac[..., FIT_NONLINEAR:] * weight[..., None]
-    lt = lin.transpose(0, 2, 1)
-    ata = lt @ jac[..., FIT_NONLINEAR:] + 1e-9 * np.eye(FIT_PARAMETERS - FIT_NONLINEAR)
-    theta[:, FIT_NONLINEAR:] = np.linalg.solve(ata, lt @ p[..., None])[..., 0]
+    lin = jac[:, FIT_NONLINEAR:]
+    wl = lin * weight[:, None, :]
+    ata = wl @ lin.transpose(0, 2, 1) + 1e-9 * np.eye(FIT_PARAMETERS - FIT_NONLINEAR)
+    theta[:, FIT_NONLINEAR:] = np.linalg.solve(ata, wl @ p[..., None])[..., 0]
     return theta
 
 
@@ -422,7 +441,7 @@ def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True) -> tuple[np.nd
     r = value - p
     wt = np.where(censored & (r > 0), 0.0, weight)
     if jac is not None:
-        jac *= wt[..., None]
+        jac *= wt[:, None, :]
     return r * wt, jac, np.einsum("np,np->n", r * wt, r)
 
 
@@ -437,21 +456,23 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur)
-    lam = np.full(len(p), 1e-3)
-    r, jac, cost = _fit_cost(theta, p, x, y, h, w, censored)
-    for it in range(iterations):
-        jt = jac.transpose(0, 2, 1)
-        jtj = jt @ jac                                                             # batched BLAS
+    lam = np.full(len(p), 1e-4)
+    active = np.arange(len(p))                # the dots still moving (each iteration works on those alone)
+    for _ in range(iterations):
+        i = active
+        r, jac, cost = _fit_cost(theta[i], p[i], x, y, h, w[i], censored[i])
+        jtj = jac @ jac.transpose(0, 2, 1)                                         # batched BLAS
         diag = np.einsum("nkk->nk", jtj) + 1e-12
-        step = np.linalg.solve(jtj + lam[:, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
-                               -(jt @ r[..., None]))[..., 0]
-        trial = _fit_cost(theta + step, p, x, y, h, w, censored, jacobian=False)[2]
+        step = np.linalg.solve(jtj + lam[i, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
+                               -(jac @ r[..., None]))[..., 0]
+        trial = _fit_cost(theta[i] + step, p[i], x, y, h, w[i], censored[i], jacobian=False)[2]
         better = np.isfinite(trial) & (trial < cost)
-        theta[better] += step[better]
-        lam = np.where(better, lam / 3, lam * 4)
-        if it >= 2 and not (better & (np.abs(step[:, :2]).max(axis=1) > 1e-4)).any():
-            break                                  # no centre moves by more than 1e-4 px
-        r, jac, cost = _fit_cost(theta, p, x, y, h, w, censored)
+        theta[i[better]] += step[better]
+        lam[i] = np.where(better, lam[i] / 3, lam[i] * 4)
+        # done: a centre that moved by less than 1e-3 px, or a fit that no longer improves
+        active = i[~((better & (np.abs(step[:, :2]).max(axis=1) < 1e-3)) | (lam[i] > 1e6))]
+        if len(active) == 0:
+            break
     s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
     ok = (np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
           & (np.hypot(*(theta[:, :2] - start).T) < 2.0))
@@ -495,10 +516,18 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     return np.where(ok[:, None], base + theta[:, :2], start)
 
 
+def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
+    """Whether window streaks cross the image's dots ``(n, 2)`` [px]: at least :data:`STREAK_SHARE` of them
+    have columns that differ by more than noise (:data:`STREAKINESS`) and alike above and below the dot
+    (:data:`COHERENCE`), on patches reaching ``reach`` [px] (:func:`flatten`)."""
+    flat = flatten(img, centres, reach + 1, dark, columns=True)
+    return bool(np.mean((flat.streakiness > STREAKINESS) & (flat.coherence > COHERENCE)) >= STREAK_SHARE)
+
+
 def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool, method: str) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured
-    once (:func:`dot_reach`) and whether window streaks cross them (:func:`streaky`: then every column is
-    flat-fielded); dots that moved more than two pixels from ``centres`` (a coarse first guess) are refined
+    once (:func:`dot_reach`); on an image crossed by window streaks (:func:`streaky`) the columns of each dot
+    they cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a coarse first guess) are refined
     again from where they moved to, flat-fielded on a ring around their new place."""
     c = np.asarray(centres, float)
     if len(c) == 0:
