@@ -28,7 +28,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
-from .centres import METHODS, refine
+from .centres import METHODS, refine, uneven_background
 from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrast, marker_kind, read_image,
                    search_missing, sweep)
 from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
@@ -45,9 +45,10 @@ IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\
 #: more smoothly on the lattice than the moments' (real, textured dots); otherwise moments, the more
 #: precise on uniform dots far out of focus
 AUTO_EDGE_RATIO = 0.7
-#: ``method="auto"`` takes the model ``fit`` where its centres lie this much more smoothly on the lattice than
-#: the best other estimator's (a bright region, saturation or streaks around the dots: the rendered zoo);
-#: elsewhere the others are as good and ten times faster
+#: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
+#: (:func:`slmlab.images.centres.uneven_background`), where its centres lie this much more smoothly on the
+#: lattice than the best other estimator's (on the rendered zoo 0.73-0.89 where a bright region saturates
+#: beside the dots; elsewhere the others are about as good and ten times faster)
 AUTO_FIT_RATIO = 0.9
 #: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
 #: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
@@ -525,18 +526,21 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
     refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
     glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
-    ``fit`` if it is below :data:`AUTO_FIT_RATIO` times the best other's residual; else an edge estimator (the
+    ``fit``, tried only on an image with saturation or streaks around the dots
+    (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
+    other's residual; else an edge estimator (the
     smoother of ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times the moments'
-    residual, else ``moments``. Returns the method and the residual [px] of each."""
+    residual, else ``moments``. Returns the method and the residual [px] of each estimator tried."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
         return "moments", {m: float("nan") for m in METHODS}
-    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS}
+    uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)
+    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS if uneven or m != "fit"}
     res = {m: lattice_residual_px(t) for m, t in tables.items()}
     most = max(len(t) for t in tables.values())
-    kept = [m for m in METHODS if len(tables[m]) == most]      # an estimator whose centres leave the lattice
+    kept = [m for m in tables if len(tables[m]) == most]      # an estimator whose centres leave the lattice
     others = [res[m] for m in kept if m != "fit" and np.isfinite(res[m])]
     if "fit" in kept and np.isfinite(res["fit"]) and (not others or res["fit"] < AUTO_FIT_RATIO * min(others)):
         return "fit", res
