@@ -64,7 +64,8 @@ def check_zoo(t: Tables, size: str) -> None:
 
 def check_extraction(t: Tables, size: str) -> None:
     """Section "Extraction on every rig": every rig's clean images and its own camera meet both targets (the
-    narrative's first line); window streaks pull the centres (its last line)."""
+    narrative's first line); window streaks pull the centres, even with the columns around each dot
+    flat-fielded one by one (its line on streaks)."""
     name = "ext11_extraction_by_degradation"
     ex = t(name)
     claim({"degradation", "rig", "images", "visible_dots", "found_percent", "misnumbered", "rms_px", "max_px"}
