@@ -1,10 +1,10 @@
 """Sub-pixel centres of a plate's dots (the paper's §3 input), four estimators on flat-fielded patches.
 
 Each dot's patch is flat-fielded by a background plane fitted on a ring outside the dot and its blur
-(:func:`flatten`), so that vignetting, a gradient or a bright region beside the dot does not pull its
-centre; where window streaks cross the image's dots (:func:`streaky`) each column of the patch is flat-fielded too,
-by its own offset from the plane outside the dot. How far the blurred dots reach is measured once per image
-on a sample of them (:func:`dot_reach`).
+(:func:`flatten`), so that vignetting, a gradient or a bright region beside the dot does not pull its centre;
+where window streaks cross the image's dots (:func:`streaky`) each column of the patch is flat-fielded too, by its
+own offset from the plane outside the dot. How far the blurred dots reach is measured once per image on a sample
+of them (:func:`dot_reach`).
 
 * ``moments`` (:func:`refine_moments`): intensity-weighted centroid of the flat-fielded contrast inside an
   anti-aliased circular window, re-centred each iteration. Uses every pixel of the dot and its blur: the most
@@ -17,10 +17,12 @@ on a sample of them (:func:`dot_reach`).
 * ``fit`` (:func:`refine_fit`): a model of the dot (a blurred ellipse whose depth varies as a plane) on a
   quadratic background, fitted by least squares to every pixel within the dot's reach, saturated pixels
   censored: where the background is not flat under the dot (a steep bright region beside it, saturation
-  around it) it follows the background the others extrapolate from a ring; ten times slower.
+  around it) it follows the background the others extrapolate from a ring; tens of times slower (441 dots of
+  stereo-PIV's 2048 × 1536 image: about 1.3 s, moments 0.04 s).
 
 :func:`refine` applies one of them by name, and refines again the dots that moved far from their first
-guess (a coarse position from the local search)."""
+guess (a coarse position from the local search).
+"""
 
 from __future__ import annotations
 
@@ -32,9 +34,9 @@ from scipy.special import erfc
 
 from .dots import as_float, gather_patches
 
-__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS", "Flat", "flatten", "profile_radius",
-           "dot_reach", "flat_patches", "streaky", "saturation", "uneven_background", "refine_moments", "fit_dots", "refine_fit",
-           "refine_ellipse", "refine_edges", "refine"]
+__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS",
+           "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streaky", "saturation",
+           "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit")
@@ -512,14 +514,14 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     the pixels within the dots' reach + 2 px (:func:`fit_dots`, :func:`_dot_model`): a blurred ellipse whose
     depth varies as a plane on a quadratic background, started from the :func:`refine_moments` centre.
 
-    The model-fitting centre of photogrammetry's targets (e.g. Luhmann et al., *Close-Range Photogrammetry
-    and 3D Imaging*, 2019, §5.4.2.6, template least-squares matching). Where the background is not flat under
-    a dot (a steep out-of-focus bright region beside it, a curved one) the fitted surface follows it, where a
-    ring outside the dot only extrapolates a plane; saturated pixels (:func:`saturation`) are censored (a dot
-    whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
-    divided by its columns' gain (window streaks, :func:`flatten`). A fit that fails (not finite, not an
-    ellipse, more than 2 px from the start) keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`.
-    About ten times slower than ``edges`` (a 15 × 15 system per dot and iteration)."""
+    Least-squares matching of a target model, as photogrammetry measures its targets (Luhmann, Robson, Kyle and Boehm,
+    *Close-Range Photogrammetry and 3D Imaging*, 3rd ed., 2019, on target centres). Where the background is not
+    flat under a dot (a steep out-of-focus bright region beside it, a curved one) the fitted surface follows it,
+    where a ring outside the dot only extrapolates a plane; saturated pixels (:func:`saturation`) are censored (a
+    dot whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
+    divided by its columns' gain (window streaks, :func:`flatten`). A fit that fails (not finite, not an ellipse,
+    more than 2 px from the start) keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`. Tens of times
+    slower than ``moments`` (a 15 × 15 system per dot and iteration, 3 to 12 iterations)."""
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
@@ -546,17 +548,18 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
 
 def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
     """Whether window streaks cross the image's dots ``(n, 2)`` [px]: at least :data:`STREAK_SHARE` of them
-    have columns that differ by more than noise (:data:`STREAKINESS`) and alike above and below the dot
-    (:data:`COHERENCE`), on patches reaching ``reach`` [px] (:func:`flatten`)."""
-    flat = flatten(img, centres, reach + 1, dark, columns=True)
+    (of at most 64 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`) and
+    alike above and below the dot (:data:`COHERENCE`), on patches reaching ``reach`` [px] (:func:`flatten`)."""
+    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 64)).astype(int)]
+    flat = flatten(img, sample, reach + 1, dark, columns=True)
     return bool(np.mean((flat.streakiness > STREAKINESS) & (flat.coherence > COHERENCE)) >= STREAK_SHARE)
 
 
 def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool, method: str) -> np.ndarray:
-    """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured
-    once (:func:`dot_reach`); on an image crossed by window streaks (:func:`streaky`) the columns of each dot
-    they cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a coarse first guess) are refined
-    again from where they moved to, flat-fielded on a ring around their new place."""
+    """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured once
+    (:func:`dot_reach`); on an image crossed by window streaks (:func:`streaky`) the columns of each dot they
+    cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a
+    coarse first guess) are refined again from where they moved to, flat-fielded on a ring around their new place."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return c.reshape(0, 2).copy()
