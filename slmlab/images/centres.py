@@ -548,9 +548,9 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
 
 def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
     """Whether window streaks cross the image's dots ``(n, 2)`` [px]: at least :data:`STREAK_SHARE` of them
-    (of at most 64 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`) and
+    (of at most 32 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`) and
     alike above and below the dot (:data:`COHERENCE`), on patches reaching ``reach`` [px] (:func:`flatten`)."""
-    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 64)).astype(int)]
+    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 32)).astype(int)]
     flat = flatten(img, sample, reach + 1, dark, columns=True)
     return bool(np.mean((flat.streakiness > STREAKINESS) & (flat.coherence > COHERENCE)) >= STREAK_SHARE)
 
