@@ -35,8 +35,7 @@ from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, insi
                       number_plate, origin_frame, plate_lattice, robust_model)
 
 __all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table",
-           "extract_image", "choose_method",
-           "report_summary", "extract_stereo_pairs"]
+           "extract_image", "choose_method", "report_summary", "extract_stereo_pairs"]
 
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
@@ -49,7 +48,7 @@ AUTO_EDGE_RATIO = 0.7
 #: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
 #: (:func:`slmlab.images.centres.uneven_background`), where its centres lie this much more smoothly on the
 #: lattice than the best other estimator's (on the rendered zoo 0.73-0.89 where a bright region saturates
-#: beside the dots; elsewhere the others are about as good and ten times faster)
+#: beside the dots; elsewhere the others are about as good and tens of times faster)
 AUTO_FIT_RATIO = 0.9
 #: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
 #: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
@@ -251,13 +250,12 @@ def _whole(xy: np.ndarray, radii: np.ndarray, shape: tuple[int, int]) -> np.ndar
 
 def _refined(loc: _Located, method: str, two_level: bool):
     """The lattice's dots refined to sub-pixel centres (:func:`slmlab.images.centres.refine`, on the image
-    cleaned of hot pixels); those cut by the image edge or off the lattice refitted on the refined centres of
-    the whole dots
-    (by more than half the capture radius, or than five times the dots' median distance from it and
-    :data:`OFF_LATTICE_PX`) are dropped. Returns the dots' nodes ``(m, 2)``, centres ``(m,
-    2)`` [px], donut flags, candidate index of each (``-1``: recovered) and the dropped ones with why
-    (candidates by index, recovered nodes by ``-1 - k``, their place among the recovered), and the lattice
-    model refitted on the refined centres."""
+    cleaned of hot pixels); those cut by the image edge or off the lattice refitted on the refined centres of the
+    whole dots (by more than half the capture radius, or than five times the dots' median distance from it and
+    :data:`OFF_LATTICE_PX`) are dropped. Returns the dots' nodes ``(m, 2)``, centres ``(m, 2)`` [px], donut
+    flags, candidate index of each (``-1``: recovered) and the dropped ones with why (candidates by index,
+    recovered nodes by ``-1 - k``, their place among the recovered), and the lattice model refitted on the
+    refined centres."""
     radii = np.sqrt(loc.area / np.pi)
     xy = refine(loc.clean, loc.xy, radii, dark=loc.dark, method=method)
     whole = _whole(xy, radii, loc.clean.shape)
@@ -529,9 +527,9 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
     ``fit``, tried only on an image with saturation or streaks around the dots
     (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
-    other's residual; else an edge estimator (the
-    smoother of ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times the moments'
-    residual, else ``moments``. Returns the method and the residual [px] of each estimator tried."""
+    other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
+    :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. Returns the method and the
+    residual [px] of each estimator tried."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
