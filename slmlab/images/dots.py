@@ -579,14 +579,17 @@ def _less_background(p: np.ndarray, ox: np.ndarray, oy: np.ndarray, band: float)
     """Patches ``(n, S, S)`` less their local background: each column's mean over the rows farther than
     ``band`` from the middle (above and below a dot: a vertical window streak or a gradient across the
     columns goes, a gradient along them cancels), or, with fewer than two such rows on each side, a plane
-    fitted outside a disk of radius ``band``."""
+    fitted outside a disk of radius ``band`` and then each column's median of what is left over all its rows
+    (a streak goes, and the dot, less than half of any column, does not pull it far; a plane alone left a
+    streak beside the dot as spread and lost the dots along it)."""
     rows = np.abs(oy[:, 0]) > band
     if rows.sum() >= 4:
         return p - p[:, rows, :].mean(axis=1, keepdims=True)
     ring = np.hypot(ox, oy) > band
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)
-    return p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy)
+    res = p - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox + coef[:, 2, None, None] * oy)
+    return res - np.median(res, axis=1, keepdims=True)
 
 
 def _flat_disks(con: Contrast, at: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:

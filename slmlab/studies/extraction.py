@@ -87,7 +87,8 @@ def extraction_summary(errors: pd.DataFrame, *, depth_of_field_mm: float = 1.13,
 
 
 def extract_folder(set_dir: str | Path, sequences: list[str], *, methods=METHODS) -> pd.DataFrame:
-    """Per-dot extraction errors of a rendered simulated set for several centre methods.
+    """Per-dot extraction errors of a rendered simulated set for several centre methods (by default every one of
+    :data:`slmlab.images.centres.METHODS`: moments, ellipse, edges and the model fit).
 
     Returns :func:`extraction_errors` rows of the chosen sequences with a ``method`` column (for the error
     against defocus figure and the choice of the default method).
