@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 
-__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUANTILE",
+__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
@@ -55,11 +55,11 @@ NCC_MIN = 0.5
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
 STREAK_BANDS = 8
-#: ... a column's offset is this quantile of its pixels in the band, on the dot-free side
-STREAK_QUANTILE = 0.75
+#: ... a column's offset is read from these quantiles of its pixels in the band, where they agree
+STREAK_QUARTILES = (0.25, 0.75)
 #: the mesh statistics are taken again less the columns' offsets where more than this share of them is beyond
-#: the noise (the rendered zoo's window streaks: 0.30-0.36; clean plates up to 0.06, from the columns through
-#: dot centres; noise alone: about 0.001); below it the second pass would change little
+#: the noise (the rendered zoo's window streaks: 0.21-0.31 of the columns; clean plates up to 0.11, from a
+#: plate's own edge along the columns; noise alone: about 0.001); below it the second pass would change little
 STREAK_SHARE = 0.15
 
 
@@ -203,7 +203,7 @@ def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
     small = cv2.GaussianBlur(small, (0, 0), 1.0)
     cell = max(8, int(min(h, w) / 16 / r))
     bg, sd = _mesh_statistics(small, cell, dark)
-    streaks = column_offsets(small - bg, dark)
+    streaks = column_offsets(small - bg)
     if np.mean(np.abs(streaks[::8]) > np.median(sd)) > STREAK_SHARE:
         bg, sd = _mesh_statistics(small - streaks, cell, dark)
         bg += streaks
@@ -211,23 +211,25 @@ def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
     return Contrast(-z if dark else z, r, bg, sd, -small if dark else small, dark)
 
 
-def column_offsets(residual: np.ndarray, dark: bool, bands: int = STREAK_BANDS) -> np.ndarray:
+def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> np.ndarray:
     """Window streaks: each column's offset ``(h, w)`` [grey levels] of ``residual`` (an image less its mesh
     background), per band of rows (:data:`STREAK_BANDS` a side, at least 16 rows each), linear in between the
-    bands' middles; zero mean across the columns of each band. A column's offset is its :data:`STREAK_QUANTILE`
-    on the dot-free side (the 3rd quartile for dark dots): the dots, less than three quarters of any column over
-    a band, do not pull it (a column through dot centres on a clean plate moves by a fraction of the noise),
-    where a median cell of the mesh, 1/16 of the image, spread a streak narrower than itself over its
-    neighbours and lost the dots beside it to the spread it added."""
+    bands' middles. A streak moves all of a column's pixels, a dot only those on its own side: a column's
+    offset is that of its 1st and 3rd quartiles (:data:`STREAK_QUARTILES`, each less its median over the
+    band's columns) that is nearer zero where they agree in sign, else zero; so neither dark nor bright dots,
+    up to three quarters of a column over a band, pass for a streak (a column through dot centres on a clean
+    plate moves by a fraction of the noise). A median cell of the mesh, 1/16 of the image, spread a streak
+    narrower than itself over its neighbours and lost the dots beside it to the spread it added."""
     h, w = residual.shape
     n = max(1, min(bands, h // 16))
     edges = np.linspace(0, h, n + 1).astype(int)
-    q = STREAK_QUANTILE if dark else 1 - STREAK_QUANTILE
     prof = np.empty((n, w), np.float32)
     for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         rows = residual[a:b:2]   # every other row: half the time, as good
-        prof[i] = np.partition(rows, min(len(rows) - 1, int(q * len(rows))), axis=0)[int(q * len(rows))]
-    prof -= np.median(prof, axis=1, keepdims=True)
+        k = [int(q * (len(rows) - 1)) for q in STREAK_QUARTILES]
+        lo, hi = np.partition(rows, k, axis=0)[k]
+        lo, hi = lo - np.median(lo), hi - np.median(hi)
+        prof[i] = np.where(lo * hi > 0, np.where(np.abs(lo) < np.abs(hi), lo, hi), 0.0)
     return cv2.resize(prof, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
