@@ -81,9 +81,8 @@ def check_extraction(t: Tables, size: str) -> None:
         claim((together["rms_px"] > clean).all(), name, rig,
               "everything together (streaks, a bright region, noise, defocus) still pulls the centres (RMS above the "
               "clean images')")
-    for r in ex[ex["misnumbered"] > 0].itertuples():
-        claim(r.tracked_images > 0, name, f"{r.degradation}, {r.rig}",
-              "misnumbered dots come from images numbered by tracking from the other stage position")
+    claim(int(ex["misnumbered"].sum()) == 0, name, "misnumbered",
+          "no dot numbered wrongly in any cell (the narrative's numbering line)")
     if size == "full":
         claim(set(ex["rig"]) == {"greenough", "stereo-dic", "stereo-piv"} and ex["degradation"].nunique() == 15,
               name, "rigs", "every rig under every degradation")
