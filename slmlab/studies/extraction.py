@@ -233,8 +233,9 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
     spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
     found dots, the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be
-    numbered alone and were tracked from a neighbouring image (a plate that moves more than half a pitch
-    between them is numbered one row or column off), and ``note``: why a set could not be extracted
+    numbered alone and were tracked by the stage motion of the images that were
+    (:func:`slmlab.images.tracking.track`; where that is ambiguous the image is left out), and ``note``: why a
+    set could not be extracted
     (``extract``'s one-line error; then nothing is found)."""
     if folder is None:  # a temporary folder, removed afterwards
         with tempfile.TemporaryDirectory(prefix="slmlab-extraction-") as tmp:
