@@ -213,7 +213,7 @@ def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
 
 def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> np.ndarray:
     """Window streaks: each column's offset ``(h, w)`` [grey levels] of ``residual`` (an image less its mesh
-    background), per band of rows (:data:`STREAK_BANDS` a side, at least 16 rows each), linear in between the
+    background), per band of rows (:data:`STREAK_BANDS` bands down the image, at least 16 rows each), linear between the
     bands' middles. A streak moves all of a column's pixels, a dot only those on its own side: a column's
     offset is that of its 1st and 3rd quartiles (:data:`STREAK_QUARTILES`, each less its median over the
     band's columns) that is nearer zero where they agree in sign, else zero; so neither dark nor bright dots,
