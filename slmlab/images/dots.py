@@ -42,7 +42,7 @@ from ..errors import SlmlabError
 __all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "reduction", "local_contrast", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
+           "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
            "marker_kind", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
@@ -152,6 +152,14 @@ class Contrast:
     signed: np.ndarray
     dark: bool = False
 
+    def again(self, img: np.ndarray) -> "Contrast":
+        """The contrast of ``img``, an image like the one this was taken of (the same with hot pixels
+        replaced), on this one's mesh: the mesh's medians and spreads do not see a few pixels."""
+        small, r = _reduced(img)
+        z = (small - self.background) / self.spread
+        return Contrast(-z if self.dark else z, r, self.background, self.spread, -small if self.dark else small,
+                        self.dark)
+
     def to_full(self, xy: np.ndarray) -> np.ndarray:
         """Reduced-image coordinates ``(n, 2)`` → full-resolution ones [px] (pixel centres at integers)."""
         return np.asarray(xy, float) * self.scale + (self.scale - 1) / 2
@@ -166,10 +174,11 @@ def reduction(shape: tuple[int, int]) -> int:
     return max(1, int(np.ceil(max(shape) / SWEEP_SIDE_PX)))
 
 
-def _mesh_statistics(small: np.ndarray, cell: int, dark: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Background (median) and spread (half-width of the dot-free side of the histogram: median minus the
-    16th percentile for bright dots, 84th minus median for dark ones) per cell of ``cell`` px, median-
-    filtered over 3 × 3 cells and interpolated to the image [grey levels]."""
+def _mesh_statistics(small: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Background (median) and the spreads for bright and for dark dots (the half-width of the dot-free side of
+    the histogram: median minus the 16th percentile for bright dots, 84th minus median for dark ones) per cell
+    of ``cell`` px, median-filtered over 3 × 3 cells and interpolated to the image [grey levels]. One
+    partition serves both polarities."""
     hs, ws = small.shape
     nr, nc = max(1, hs // cell), max(1, ws // cell)
     y0, x0 = (hs - nr * cell) // 2, (ws - nc * cell) // 2
@@ -179,36 +188,54 @@ def _mesh_statistics(small: np.ndarray, cell: int, dark: bool) -> tuple[np.ndarr
     n = block.shape[-1]
     ks = [int(0.1587 * n), n // 2, int(0.8413 * n)]
     p = np.partition(block, ks, axis=-1)[..., ks]
-    bg = np.ascontiguousarray(p[..., 1], dtype=np.float32)
-    sd = np.ascontiguousarray(p[..., 2] - p[..., 1] if dark else p[..., 1] - p[..., 0], dtype=np.float32)
+    mesh = [np.ascontiguousarray(m, dtype=np.float32) for m in (p[..., 1], p[..., 1] - p[..., 0], p[..., 2] - p[..., 1])]
     if min(nr, nc) >= 3:
-        bg, sd = cv2.medianBlur(bg, 3), cv2.medianBlur(sd, 3)
+        mesh = [cv2.medianBlur(m, 3) for m in mesh]
     lo, hi = np.percentile(small[::4, ::4], [0.1, 99.9])
     spread_all = float(hi - lo)
-    sd = np.maximum(sd, max(1e-3 * spread_all, 0.05 * float(np.median(sd)), 1e-6))
+    mesh[1:] = [np.maximum(sd, max(1e-3 * spread_all, 0.05 * float(np.median(sd)), 1e-6)) for sd in mesh[1:]]
 
     def up(m):  # cell values at cell centres, linear in between, replicated beyond the outer centres
         m = cv2.resize(m, (nc * cell, nr * cell), interpolation=cv2.INTER_LINEAR)
         return cv2.copyMakeBorder(m, y0, hs - y0 - nr * cell, x0, ws - x0 - nc * cell, cv2.BORDER_REPLICATE)
-    return up(bg), up(sd)
+    return tuple(up(m) for m in mesh)
 
 
-def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
-    """The local-contrast image of ``img`` (module docstring, step 1) for dark or bright dots."""
+def _reduced(img: np.ndarray) -> tuple[np.ndarray, int]:
+    """The image reduced by :func:`reduction` (area average) and smoothed (Gaussian, 1 reduced px), and the
+    factor."""
     f = img if img.dtype == np.float32 else img.astype(np.float32)
     h, w = f.shape
     r = reduction(f.shape)
     # crop to whole blocks so that the reduction is exactly r (reduced pixel i covers pixels r·i … r·i + r − 1)
     small = cv2.resize(f[:h // r * r, :w // r * r], (w // r, h // r), interpolation=cv2.INTER_AREA) if r > 1 else f
-    small = cv2.GaussianBlur(small, (0, 0), 1.0)
-    cell = max(8, int(min(h, w) / 16 / r))
-    bg, sd = _mesh_statistics(small, cell, dark)
+    return cv2.GaussianBlur(small, (0, 0), 1.0), r
+
+
+def local_contrasts(img: np.ndarray, polarities=(False, True)) -> list[Contrast]:
+    """The local-contrast image of ``img`` (module docstring, step 1), one per polarity in ``polarities``
+    (``dark``: True or False). The reduction, the mesh and the streak columns do not depend on the polarity
+    and are computed once; the mesh is taken again less the streaks for the polarities whose gate fires."""
+    small, r = _reduced(img)
+    cell = max(8, int(min(img.shape) / 16 / r))
+    bg, *sds = _mesh_statistics(small, cell)
     streaks = column_offsets(small - bg)
-    if np.mean(np.abs(streaks[::8]) > np.median(sd)) > STREAK_SHARE:
-        bg, sd = _mesh_statistics(small - streaks, cell, dark)
-        bg += streaks
-    z = (small - bg) / sd
-    return Contrast(-z if dark else z, r, bg, sd, -small if dark else small, dark)
+    again = None
+    out = []
+    for dark in polarities:
+        b, sd = bg, sds[int(dark)]
+        if np.mean(np.abs(streaks[::8]) > np.median(sd)) > STREAK_SHARE:
+            if again is None:
+                again = _mesh_statistics(small - streaks, cell)
+            b, sd = again[0] + streaks, again[1 + int(dark)]
+        z = (small - b) / sd
+        out.append(Contrast(-z if dark else z, r, b, sd, -small if dark else small, dark))
+    return out
+
+
+def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
+    """The local-contrast image of ``img`` (module docstring, step 1) for dark or bright dots."""
+    return local_contrasts(img, (dark,))[0]
 
 
 def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> np.ndarray:
@@ -443,52 +470,54 @@ def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level:
 
 
 # ------------------------------------------------------------------------------------------ hot pixels
-def _stand_out(img: np.ndarray, ring: np.ndarray, sigma: float) -> np.ndarray:
-    """Mask (``uint8``, 255 where true) of pixels that exceed all their neighbours of ``ring`` (a 3 × 3
-    kernel) by more than 8 noise σ and by more than the neighbours' own range, or fall below them so
-    (OpenCV's saturating arithmetic and masks: the whole image is touched a few times only)."""
-    hi, lo = cv2.dilate(img, ring), cv2.erode(img, ring)
-    if img.dtype == np.float32:
-        up, down, span = img - hi, lo - img, hi - lo
-    else:
-        up, down, span = cv2.subtract(img, hi), cv2.subtract(lo, img), cv2.subtract(hi, lo)
-    m = [cv2.compare(a, b, cv2.CMP_GT) for a, b in ((up, 8 * sigma), (up, span), (down, 8 * sigma), (down, span))]
-    return cv2.bitwise_or(cv2.bitwise_and(m[0], m[1]), cv2.bitwise_and(m[2], m[3]))
-
-
-def _positions(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns of the non-zero pixels of a ``uint8`` mask."""
-    p = cv2.findNonZero(mask)
-    if p is None:
-        return np.empty(0, int), np.empty(0, int)
-    return p[:, 0, 1].astype(int), p[:, 0, 0].astype(int)
-
-
 #: the eight neighbours (row, column offsets), and for each direction the two of them along it
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 _ALONG = [(3, 4), (1, 6), (0, 7), (2, 5)]
 
 
-def _hot_pairs(img: np.ndarray, med: np.ndarray, sigma: float) -> np.ndarray:
-    """Mask (``uint8``) of the pixels of adjacent hot (dead) pairs: those more than 8 σ off their 3 × 3 median that exceed (fall
-    below) their neighbours but the two along one direction by more than 8 σ and by more than those
-    neighbours' range. Tested only at the pixels off their median (few), not over the image."""
+def _off_median(img: np.ndarray, med: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the pixels more than 8 σ off their 3 × 3 median, and of every pixel of the image's
+    border (whose median counts it more than once): the only pixels that can stand out of their neighbours
+    (a pixel above all eight is above its median, one of them)."""
     off = cv2.compare(cv2.absdiff(img, med), 8 * sigma, cv2.CMP_GT)
-    off[[0, -1], :], off[:, [0, -1]] = 0, 0
-    ys, xs = _positions(off)
-    out = np.zeros(img.shape, np.uint8)
-    if len(ys) == 0:
-        return out
-    nb = img[ys[:, None] + _NEIGHBOURS[:, 0], xs[:, None] + _NEIGHBOURS[:, 1]].astype(np.float32)  # (n, 8)
-    v = img[ys, xs].astype(np.float32)
-    sign = np.sign(v - med[ys, xs].astype(np.float32))
+    off[[0, -1], :], off[:, [0, -1]] = 255, 255
+    p = cv2.findNonZero(off)
+    return p[:, 0, 1].astype(int), p[:, 0, 0].astype(int)
+
+
+def _neighbours(img: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The eight neighbours ``(n, 8)`` of pixels ``ys, xs`` (as float) and which of them are inside the image."""
+    y, x = ys[:, None] + _NEIGHBOURS[:, 0], xs[:, None] + _NEIGHBOURS[:, 1]
+    h, w = img.shape
+    inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+    return img[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)].astype(np.float64), inside
+
+
+def _stand_out(img: np.ndarray, ys: np.ndarray, xs: np.ndarray, sigma: float) -> np.ndarray:
+    """Which of the pixels ``ys, xs`` exceed all their neighbours in the image by more than 8 noise σ and by
+    more than the neighbours' own range, or fall below them so."""
+    nb, inside = _neighbours(img, ys, xs)
+    hi, lo = np.where(inside, nb, -np.inf).max(axis=1), np.where(inside, nb, np.inf).min(axis=1)
+    v = img[ys, xs].astype(np.float64)
+    up, down, span = v - hi, lo - v, hi - lo
+    return ((up > 8 * sigma) & (up > span)) | ((down > 8 * sigma) & (down > span))
+
+
+def _hot_pairs(img: np.ndarray, med: np.ndarray, ys: np.ndarray, xs: np.ndarray, sigma: float) -> np.ndarray:
+    """Which of the pixels ``ys, xs`` (more than 8 σ off their 3 × 3 median) are of adjacent hot (dead) pairs:
+    they exceed (fall below) their neighbours but the two along one direction by more than 8 σ and by more
+    than those neighbours' range."""
+    nb, inside = _neighbours(img, ys, xs)
+    v = img[ys, xs].astype(np.float64)
+    sign = np.sign(v - med[ys, xs].astype(np.float64))
     hit = np.zeros(len(ys), bool)
     for pair in _ALONG:
-        rest = np.delete(nb, pair, axis=1) * sign[:, None]
-        up, span = v * sign - rest.max(axis=1), rest.max(axis=1) - rest.min(axis=1)
-        hit |= (up > 8 * sigma) & (up > span)
-    out[ys[hit], xs[hit]] = 255
-    return out
+        rest = np.delete(nb * sign[:, None], pair, axis=1)
+        ok = np.delete(inside, pair, axis=1)
+        top, bottom = np.where(ok, rest, -np.inf).max(axis=1), np.where(ok, rest, np.inf).min(axis=1)
+        up = v * sign - top
+        hit |= (up > 8 * sigma) & (up > top - bottom) & ok.all(axis=1)
+    return hit
 
 
 def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None) -> tuple[np.ndarray, int]:
@@ -511,18 +540,18 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
     sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) + 1e-6
     if img.dtype != np.float32:
         sigma = max(sigma, 1.0)                  # at least one grey level
-    ring = np.ones((3, 3), np.uint8)
-    ring[1, 1] = 0
-    hot = _stand_out(img, ring, sigma)
-    if cv2.countNonZero(hot) == 0:
+    ys, xs = _off_median(img, med, sigma)
+    hot = _stand_out(img, ys, xs, sigma)
+    if not hot.any():
         return img, 0
-    hot = cv2.bitwise_or(hot, _hot_pairs(img, med, sigma))
+    hot |= _hot_pairs(img, med, ys, xs, sigma)
+    ys, xs = ys[hot], xs[hot]
     if dots is not None and len(dots):
         inside = np.zeros(img.shape, np.uint8)
         for x, y in np.rint(dots).astype(int):
             cv2.circle(inside, (int(x), int(y)), int(np.ceil(dot_radius_px)), 255, -1)
-        hot = cv2.bitwise_and(hot, cv2.bitwise_not(inside))
-    ys, xs = _positions(hot)
+        keep = inside[ys, xs] == 0
+        ys, xs = ys[keep], xs[keep]
     if len(ys) == 0:
         return img, 0
     out = img.copy()                           # the 5 × 5 median (a pair's partner does not pull it)

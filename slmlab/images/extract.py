@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
-from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrast, marker_kind, read_image,
+from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrasts, marker_kind, read_image,
                    search_missing, sweep)
 from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
                       number_plate, origin_frame, plate_lattice, robust_model)
@@ -136,19 +136,16 @@ class _Located:
     src: np.ndarray | None = None
 
 
-def _detect(img: np.ndarray, dark: bool, two_level: bool) -> _Located:
-    """Local contrast, sweep and lattice for one polarity."""
-    con = local_contrast(img, dark=dark)
+def _detect(img: np.ndarray, con: Contrast, two_level: bool) -> _Located:
+    """Sweep and lattice for one polarity's contrast."""
     cand = sweep(con)
-    return _Located(dark, con, cand, fit_lattice(cand, img.shape, two_level=two_level))
+    return _Located(con.dark, con, cand, fit_lattice(cand, img.shape, two_level=two_level))
 
 
 def _detect_any(img: np.ndarray, dark: bool | None, two_level: bool) -> _Located:
     """:func:`_detect` for the given polarity, or for both (``dark=None``), keeping the one whose lattice
     holds more candidates."""
-    if dark is not None:
-        return _detect(img, dark, two_level)
-    runs = [_detect(img, d, two_level) for d in (False, True)]
+    runs = [_detect(img, con, two_level) for con in local_contrasts(img, (False, True) if dark is None else (dark,))]
     return max(runs, key=lambda r: -1 if r.fit is None else int(r.fit.on.sum()))
 
 
@@ -164,7 +161,7 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
         return loc
     radius = _dot_radius(loc)
     loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on])
-    con = local_contrast(loc.clean, dark=loc.dark) if loc.hot else loc.con
+    con = loc.con.again(loc.clean) if loc.hot else loc.con
     grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
     loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
     loc.ab, loc.xy, loc.area, loc.hole, loc.src = _lattice_dots(loc.cand, loc.fit, loc.searched)
