@@ -743,7 +743,8 @@ def plot_ratio_grid(ratios, key: str, ax=None, *, limit: float = 1.0, title: str
     ax.imshow(np.log(np.clip(values, 1 / vmax, vmax)), cmap="RdYlGn_r", vmin=-np.log(vmax), vmax=np.log(vmax),
               aspect="auto")
     for (i, j), v in np.ndenumerate(values):
-        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6)
+        dark = abs(np.log(np.clip(v, 1 / vmax, vmax))) > 0.6 * np.log(vmax)   # white on the deepest colours
+        ax.text(j, i, f"{v:.2f}", ha="center", va="center", fontsize=6, color="w" if dark else "k")
         if v > limit * (1 + 1e-9):
             ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, lw=1.2, edgecolor="k"))
     ax.set_xticks(range(3), ["X", "Y", "Z"])

@@ -1,6 +1,8 @@
 """The zoo: how well each model calibrates each virtual rig (:mod:`slmlab.virtual.rigs`) from each design
 (:mod:`slmlab.virtual.designs`), against the truth floor and the best plain polynomial.
 
+* :func:`stage_free`: the default's ratios again with the rig's stage made perfect: what the stage's errors,
+  which no held-out dot or plane can see, cost it.
 * :func:`compare_models`: a rig, a design (:mod:`slmlab.virtual.designs`) and a held-out validation set of
   random points in the calibrated volume; per coordinate RMS error (net of one common offset, in the frame
   the design calibrates in) of each model (:func:`slmlab.calibrate`), of plain least-squares polynomials of
@@ -22,8 +24,10 @@ from ..models.reference import DEGREES
 from ..virtual.designs import DESIGNS, design_frame, simulate_design, validation_set
 from ..virtual.rig_checks import physics_checks
 from .realrigs import rms_after_offset
+from .workspace import perfect_stage
 
-__all__ = ["MODELS", "POLY_DEGREES", "TARGETS", "rig_table", "compare_models", "run_zoo", "ratio_table", "target_summary"]
+__all__ = ["MODELS", "POLY_DEGREES", "TARGETS", "rig_table", "compare_models", "run_zoo", "ratio_table", "target_summary",
+           "stage_free"]
 
 MODELS = ("auto", "pinhole")
 POLY_DEGREES = DEGREES
@@ -141,3 +145,21 @@ def target_summary(ratios: pd.DataFrame) -> pd.DataFrame:
                      "median": float(cells["value"].median()), "worst": float(worst["value"]),
                      "worst_at": f"{worst['rig']}, {worst['design']}, {worst['variable'][0]}"})
     return pd.DataFrame(rows)
+
+
+def stage_free(rig, designs, *, seed: int = 1, n_validation: int = 1500, as_built: pd.DataFrame | None = None
+               ) -> pd.DataFrame:
+    """The default's :func:`ratio_table` on ``rig`` as built and with its stage made perfect (no scale, lead,
+    straightness or positioning errors: :func:`slmlab.studies.workspace.perfect_stage`; the optics, the dots'
+    noise and the seeds unchanged), for each of ``designs``; column ``stage``: ``"as built"`` or
+    ``"perfect"``. Every dot of a stage position shares that position's error, so neither a held-out dot
+    nor a held-out plane of a set with few positions tells it from the optics: this shows what it costs.
+    ``as_built``: the rig's rows of an earlier :func:`ratio_table` (same seed and validation size), not
+    computed again."""
+    designs = list(designs)
+    if as_built is None or not set(designs) <= set(as_built.loc[as_built["rig"] == rig.preset, "design"]):
+        as_built = ratio_table(run_zoo([rig], designs, seed=seed, models=("auto",), n_validation=n_validation))
+    built = as_built[(as_built["rig"] == rig.preset) & as_built["design"].isin(designs)]
+    perfect = ratio_table(run_zoo([perfect_stage(rig)], designs, seed=seed, models=("auto",), n_validation=n_validation))
+    out = pd.concat([built.assign(stage="as built"), perfect.assign(stage="perfect")], ignore_index=True)
+    return out[["stage", *built.columns]]
