@@ -35,7 +35,7 @@ from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, insi
                       number_plate, origin_frame, plate_lattice, robust_model)
 
 __all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table",
-           "extract_image", "choose_method", "report_summary", "extract_stereo_pairs"]
+           "extract_image", "extract_image_methods", "choose_method", "report_summary", "extract_stereo_pairs"]
 
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
@@ -437,15 +437,26 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
         a two-level plate (rows alternating between two depths, offset by half a pitch): indices in half
         pitches and a ``level`` per dot.
     """
-    if method not in METHODS:
-        raise SlmlabError(f"unknown centre method {method!r}; use one of {', '.join(METHODS)}")
+    return extract_image_methods(img, rows, cols, methods=(method,), dark=dark, dot_diameter_px=dot_diameter_px,
+                                 anchor=anchor, marker_origin=marker_origin, two_level=two_level)[method]
+
+
+def extract_image_methods(img: np.ndarray, rows: int | None = None, cols: int | None = None, *, methods=METHODS,
+                          dark: bool | None = True, dot_diameter_px: float | None = None, anchor: str = "auto",
+                          marker_origin: tuple[int, int] = (2, 2), two_level: bool = False) -> dict:
+    """:func:`extract_image` (same parameters) by each centre estimator of ``methods``, as a dict from method to
+    :class:`ImageDots`, the dots found once: detection, lattice, hot pixels and the local search do not
+    depend on the estimator (its centres, what refinement drops and the numbering that follows do)."""
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise SlmlabError(f"unknown centre method {bad[0]!r}; use one of {', '.join(METHODS)}")
     if anchor not in ("auto", "plate", "markers"):
         raise SlmlabError(f"unknown anchor {anchor!r}; use 'auto', 'plate' or 'markers'")
     loc = _locate(img, rows, cols, dark, two_level)
     if loc.fit is None:
-        return _no_lattice(loc)
-    return _finish(loc, method, rows, cols, dict(anchor=anchor, marker_origin=marker_origin, two_level=two_level),
-                   dot_diameter_px)
+        return {m: _no_lattice(loc) for m in methods}
+    anchoring = dict(anchor=anchor, marker_origin=marker_origin, two_level=two_level)
+    return {m: _finish(loc, m, rows, cols, anchoring, dot_diameter_px) for m in methods}
 
 
 def _no_lattice(loc: _Located) -> ImageDots:

@@ -17,7 +17,7 @@ from ..errors import SlmlabError
 from ..io import KEY_COLUMNS, CalibrationSet, read_set, write_set
 from ..images.centres import METHODS
 from ..images.dots import read_image
-from ..images.extract import extract_image
+from ..images.extract import extract_image_methods
 from ..images.imageset import TRACKED, extract_set
 from ..virtual.designs import simulate_design
 from ..virtual.microscope import from_dict
@@ -88,28 +88,31 @@ def extraction_summary(errors: pd.DataFrame, *, depth_of_field_mm: float = 1.13,
 
 def extract_folder(set_dir: str | Path, sequences: list[str], *, methods=METHODS) -> pd.DataFrame:
     """Per-dot extraction errors of a rendered simulated set for several centre methods (by default every one of
-    :data:`slmlab.images.centres.METHODS`: moments, ellipse, edges and the model fit).
+    :data:`slmlab.images.centres.METHODS`: moments, ellipse, edges and the model fit), each image's dots found
+    once and refined by each (:func:`slmlab.images.extract.extract_image_methods`).
 
     Returns :func:`extraction_errors` rows of the chosen sequences with a ``method`` column (for the error
     against defocus figure and the choice of the default method).
     """
     set_dir = Path(set_dir)
     cal = read_set(set_dir)
-    frames = []
-    for method in methods:
-        rows = []
-        for seq in sequences:
-            plate = cal.plate(seq)
-            for pos in sorted(cal.sequence(seq)["position"].unique()):
-                for side in "lr":
-                    img = read_image(set_dir / "images" / f"{seq}_{pos:03d}_{side}.png")
-                    t = extract_image(img, int(plate["rows"]), int(plate["cols"]), method=method).table
-                    t = t.rename(columns={"w1": f"w{side}1", "w2": f"w{side}2"})[["row", "col", f"w{side}1", f"w{side}2"]]
+    rows = {m: [] for m in methods}
+    for seq in sequences:
+        plate = cal.plate(seq)
+        for pos in sorted(cal.sequence(seq)["position"].unique()):
+            for side in "lr":
+                img = read_image(set_dir / "images" / f"{seq}_{pos:03d}_{side}.png")
+                found = extract_image_methods(img, int(plate["rows"]), int(plate["cols"]), methods=methods)
+                for method, dots in found.items():
+                    t = dots.table.rename(columns={"w1": f"w{side}1", "w2": f"w{side}2"})
+                    t = t[["row", "col", f"w{side}1", f"w{side}2"]]
                     t.insert(0, "sequence", seq)
                     t.insert(1, "position", pos)
-                    rows.append(t.set_index(["sequence", "position", "row", "col"]))
-        pts = pd.concat(rows).groupby(level=[0, 1, 2, 3]).first().reset_index()
-        sub = cal.truth["sequence"].isin(sequences)
+                    rows[method].append(t.set_index(["sequence", "position", "row", "col"]))
+    sub = cal.truth["sequence"].isin(sequences)
+    frames = []
+    for method in methods:
+        pts = pd.concat(rows[method]).groupby(level=[0, 1, 2, 3]).first().reset_index()
         err = extraction_errors(pts, CalibrationSet(pts, cal.meta, cal.truth[sub].reset_index(drop=True)))
         err.insert(0, "method", method)
         frames.append(err)
