@@ -6,6 +6,7 @@ notebook machinery, the plots, the tables and a notebook's claims after its smal
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import pytest
@@ -23,6 +24,19 @@ def test_there_are_notebooks():
 
 def test_the_quick_notebooks_are_there():
     assert set(QUICK) <= {p.stem for p in NOTEBOOKS}, f"QUICK names a notebook that is not in notebooks/: {QUICK}"
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+def test_notebooks_are_committed_valid_and_without_outputs(path):
+    import nbformat   # (the notebook tools: loaded by the tests that need them)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # nbformat's MissingIDFieldWarning, say: valid today, an error tomorrow
+        nb = nbformat.reads(path.read_text(encoding="utf-8"), as_version=4)
+        nbformat.validate(nb)
+    ids = [c.get("id") for c in nb.cells]
+    assert all(ids) and len(set(ids)) == len(ids), f"{path.name}: every cell needs its own id"
+    assert not any(c.get("outputs") or c.get("execution_count") for c in nb.cells if c.cell_type == "code"), \
+        f"{path.name} is committed with outputs"
 
 
 def test_notebooks_start_longest_first_and_their_durations_are_recorded(tmp_path):
