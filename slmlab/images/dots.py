@@ -541,7 +541,10 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
     if img.dtype != np.float32:
         sigma = max(sigma, 1.0)                  # at least one grey level
     ys, xs = _off_median(img, med, sigma)
-    hot = _stand_out(img, ys, xs, sigma)
+    square = np.ones((3, 3), np.uint8)   # a pixel above (below) all eight neighbours is its 3 × 3 maximum (minimum)
+    peak = (img[ys, xs] == cv2.dilate(img, square)[ys, xs]) | (img[ys, xs] == cv2.erode(img, square)[ys, xs])
+    hot = np.zeros(len(ys), bool)
+    hot[peak] = _stand_out(img, ys[peak], xs[peak], sigma)
     if not hot.any():
         return img, 0
     hot |= _hot_pairs(img, med, ys, xs, sigma)
