@@ -47,7 +47,7 @@ IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\
 AUTO_EDGE_RATIO = 0.7
 #: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
 #: (:func:`slmlab.images.centres.uneven_background`) or dots less than
-#: :data:`slmlab.images.centres.NOISY_CNR` times the plate's noise deep
+#: :data:`slmlab.images.centres.NOISY_CNR` times the pixel noise deep
 #: (:func:`slmlab.images.centres.contrast_to_noise`), where its centres lie this much more smoothly on the
 #: lattice than the best other estimator's (1: more smoothly at all; on the first images of the rendered zoo's
 #: seed 1 it was 0.72-0.99 of the others', and as accurate as they or more in every cell it was taken in, seeds
@@ -543,7 +543,7 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
     ``fit``, tried only on an image with saturation or streaks around the dots
     (:func:`slmlab.images.centres.uneven_background`) or with dots less than
-    :data:`slmlab.images.centres.NOISY_CNR` times the plate's noise deep
+    :data:`slmlab.images.centres.NOISY_CNR` times the pixel noise deep
     (:func:`slmlab.images.centres.contrast_to_noise`), if it is below :data:`AUTO_FIT_RATIO` times the best
     other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
     :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. Returns the method and the
