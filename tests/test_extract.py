@@ -265,21 +265,6 @@ def test_an_even_background_is_neither_saturated_nor_streaky():
     assert saturation(np.zeros((2, 2), np.float32)) == np.inf
 
 
-@pytest.mark.parametrize("depth, noise", [(105.0, 1.0), (40.0, 2.0), (30.0, 4.0)])
-def test_contrast_to_noise_is_the_dots_depth_over_the_pixel_noise(depth, noise):
-    """Dots ``depth`` grey levels below a plate at 150 under white noise of σ ``noise``: the measured contrast
-    to noise is within a fifth of ``depth / noise``, and the fit is tried by ``auto`` (its residual reported)
-    below :data:`NOISY_CNR` only."""
-    from slmlab.images.centres import NOISY_CNR, contrast_to_noise
-    from slmlab.images.extract import choose_method
-    xy, cov, rng = _synthetic_plate(blur=1.0)
-    img = np.clip(np.rint(150 - depth * cov + rng.normal(0, noise, cov.shape)), 0, 255).astype(np.uint8)
-    cnr = contrast_to_noise(img, xy, np.full(len(xy), 12.0), True)
-    assert abs(cnr / (depth / noise) - 1) < 0.2, cnr
-    _, residuals = choose_method(img, 5, 5)
-    assert ("fit" in residuals) == (depth / noise < NOISY_CNR)
-
-
 def test_the_local_search_finds_dots_beside_a_saturated_streak():
     """A column of dots the sweep missed, a saturated streak 12 px beside it, the search window as wide as the
     patch (no rows above and below the dot to take each column's level from): each column's median less a

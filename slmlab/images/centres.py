@@ -36,7 +36,7 @@ from .dots import as_float, gather_patches
 
 __all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streaky", "saturation",
-           "uneven_background", "contrast_to_noise", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges", "refine"]
+           "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit")
@@ -50,12 +50,6 @@ COHERENCE = 0.8
 #: ... on an image where at least this share of the dots is so crossed (:func:`streaky`; the rendered zoo's
 #: streaks: 0.25-0.8 of the dots; real plates: up to 0.05, dots by a dust line or the image's edge)
 STREAK_SHARE = 0.1
-#: the model fit is worth trying on an image whose dots stand less than this many times the plate's noise
-#: from it (:func:`contrast_to_noise`): a centroid's and an outline's errors grow with noise over contrast
-#: faster than a fitted model's (the rendered zoo's first images: clean and one nuisance but noise 84-173; low
-#: and lowest contrast, 12 and 16 bit, noise, the rigs' own cameras, everything together 4-47; PIV Challenge
-#: case E 77)
-NOISY_CNR = 50.0
 #: angular sectors of a dot's outline in :func:`refine_edges` (the outermost crossing of each is used)
 SECTORS = 64
 
@@ -512,27 +506,6 @@ def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, d
     reach = dot_reach(img, c, radii, dark)
     p, _ = gather_patches(img, c, int(np.ceil(reach + 2)))
     return bool((p >= saturation(img)).any()) or streaky(img, c, radii, dark, reach)
-
-
-def contrast_to_noise(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool) -> float:
-    """The dots' depth over the plate's noise around them [-], on at most 16 dots spread over ``centres``
-    ``(n, 2)`` [px], flat-fielded (:func:`flatten`, in grey levels: times the plate's level for dark dots):
-    the median of their cores' contrast over the spread of the pixels beyond their blur (the mean absolute
-    deviation of all but the 2 % farthest, as a Gaussian σ)."""
-    c = np.asarray(centres, float)
-    if len(c) == 0:
-        return float("inf")
-    r = float(np.median(radii))
-    sample = c[np.linspace(0, len(c) - 1, min(len(c), 16)).astype(int)]
-    flat = flatten(img, sample, 1.6 * r + 4, dark)
-    grey = flat.contrast * (np.maximum(flat.coef[:, 0], 1.0)[:, None, None] if dark else 1.0)
-    d = np.hypot(flat.ox, flat.oy)
-    depth = float(np.median(np.median(grey[:, d <= max(0.5 * r, 1.0)], axis=1)))
-    plate = grey[:, d > 1.6 * r + 4]
-    dev = np.abs(plate - np.median(plate, axis=1, keepdims=True)).ravel()
-    dev = dev[dev <= np.percentile(dev, 98)]             # not a neighbour's edge or a speck
-    noise = np.sqrt(np.pi / 2) * float(np.mean(dev)) + 1e-6  # a mean, not a median: integer images are stepped
-    return depth / noise
 
 
 def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,

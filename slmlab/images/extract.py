@@ -28,7 +28,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
-from .centres import METHODS, NOISY_CNR, contrast_to_noise, refine, uneven_background
+from .centres import METHODS, refine, uneven_background
 from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrasts, marker_kind, read_image,
                    search_missing, sweep)
 from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
@@ -46,9 +46,7 @@ IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\
 #: precise on uniform dots far out of focus
 AUTO_EDGE_RATIO = 0.7
 #: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
-#: (:func:`slmlab.images.centres.uneven_background`) or dots less than
-#: :data:`slmlab.images.centres.NOISY_CNR` times the pixel noise deep
-#: (:func:`slmlab.images.centres.contrast_to_noise`), where its centres lie this much more smoothly on the
+#: (:func:`slmlab.images.centres.uneven_background`), where its centres lie this much more smoothly on the
 #: lattice than the best other estimator's (1: more smoothly at all; on the first images of the rendered zoo's
 #: seed 1 it was 0.72-0.99 of the others', and as accurate as they or more in every cell it was taken in, seeds
 #: 1 and 2; elsewhere it is not tried: the others are about as good there and tens of times faster)
@@ -542,9 +540,7 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
     glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
     ``fit``, tried only on an image with saturation or streaks around the dots
-    (:func:`slmlab.images.centres.uneven_background`) or with dots less than
-    :data:`slmlab.images.centres.NOISY_CNR` times the pixel noise deep
-    (:func:`slmlab.images.centres.contrast_to_noise`), if it is below :data:`AUTO_FIT_RATIO` times the best
+    (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
     other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
     :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. Returns the method and the
     residual [px] of each estimator tried."""
@@ -553,10 +549,8 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
         return "moments", {m: float("nan") for m in METHODS}
-    radii = np.sqrt(loc.area / np.pi)
-    worth = (uneven_background(loc.clean, loc.xy, radii, loc.dark)
-             or contrast_to_noise(loc.clean, loc.xy, radii, loc.dark) < NOISY_CNR)   # where fit is worth its time
-    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS if worth or m != "fit"}
+    uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)
+    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS if uneven or m != "fit"}
     res = {m: lattice_residual_px(t) for m, t in tables.items()}
     most = max(len(t) for t in tables.values())
     kept = [m for m in tables if len(tables[m]) == most]      # an estimator whose centres leave the lattice
