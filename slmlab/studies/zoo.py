@@ -21,6 +21,7 @@ from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS
 from ..models import calibrate
 from ..models.reference import DEGREES
+from ..outputs import table_digits
 from ..virtual.designs import DESIGNS, design_frame, simulate_design, validation_set
 from ..virtual.rig_checks import physics_checks
 from .realrigs import rms_after_offset
@@ -109,7 +110,9 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
     """Per rig and design, ``model``'s error (default: the default model) per coordinate over the noise floor
     (``{c}_vs_floor``), over the best plain polynomial of degree 1–4 chosen with hindsight on the truth
     (``{c}_vs_polynomial``) and over the best of the default's own candidates chosen the same way
-    (``{c}_vs_candidates``); ``choice``: what the default took for each coordinate."""
+    (``{c}_vs_candidates``); ``choice``: what the default took for each coordinate. Rounded as the tables are
+    written (:func:`slmlab.outputs.table_digits`), so that a target is met or missed as the table shows it: a
+    ratio of 1.00004 (the chosen candidate, reconstructed beside the others) is a tie, not a loss."""
     rows = []
     for (rig, design), g in results.groupby(["rig", "design"], sort=False):
         g = g.set_index("model")
@@ -126,7 +129,7 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
             row[f"{c}_vs_polynomial"] = v / g.loc[polys, f"{c}_um"].min()
             row[f"{c}_vs_candidates"] = v / g.loc[own, f"{c}_um"].min()
         rows.append(row)
-    return pd.DataFrame(rows)
+    return table_digits(pd.DataFrame(rows))
 
 
 #: the issue's targets for the default on every rig and design, per coordinate
