@@ -190,6 +190,29 @@ def _means(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarra
     return (groups @ x) / sw[:, None]
 
 
+def _centred(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
+    """``x`` less the weighted mean of its group (:func:`_means`); one group (a set whose world positions are
+    known up to one constant) broadcasts its mean row instead of gathering it per row."""
+    means = _means(x, inv, n, wts)
+    return x - (means if n == 1 else means[inv])
+
+
+def _design(pc, pm, theta, pinv, cols, sq) -> np.ndarray:
+    """One coordinate's design matrix of :func:`_solve`, column-major (the memory order its Gram matrix has
+    always been computed in, so the same bits): the monomials ``cols`` of the centred features ``pc``
+    (column-major) less ``θ_t`` times their position means ``pm`` (skipped where every ``θ_t`` is 0, as in
+    Z), each row scaled by its weight's root ``sq``."""
+    pck = pc if cols.all() else pc[:, cols]
+    a = np.empty(pck.shape, order="F")
+    if theta.any():
+        shift = np.take(theta * pm.T[cols], pinv, axis=1)  # (columns, rows): θ_t · mean, per row
+        np.subtract(pck, shift.T, out=a)
+        a *= sq[:, None]
+    else:
+        np.multiply(pck, sq[:, None], out=a)
+    return a
+
+
 # --------------------------------------------------------------------------------------------- solver
 def _least_squares(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-norm least squares through the eigen-decomposition of the normal matrix ``AᵀA`` (a few
@@ -239,14 +262,15 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
     per_group = np.bincount(inv, minlength=n_g)
     dof_dots = np.mean(per_group[inv] / np.maximum(per_group[inv] - 1, 1)) if n_g > 1 else 1.0
     for it in range(iterations):
-        pc, sc = phi - _means(phi, inv, n_g, wts)[inv], target - _means(target, inv, n_g, wts)[inv]
+        pc, sc = _centred(phi, inv, n_g, wts), _centred(target, inv, n_g, wts)
         pm, sm = _means(pc, pinv, n_p, wts), _means(sc, pinv, n_p, wts)
+        pc_columns = np.asfortranarray(pc)  # the designs are built and multiplied column by column
         coef = np.zeros((m, 3))
         designs = []
         for k in range(3):
             sq = np.sqrt(wts * hw[:, k])
             th = theta[pinv, k]
-            a = (pc[:, mask[:, k]] - th[:, None] * pm[pinv][:, mask[:, k]]) * sq[:, None]
+            a = _design(pc_columns, pm, theta[:, k], pinv, mask[:, k], sq)
             b = (sc[:, k] - th * sm[pinv, k]) * sq
             coef[mask[:, k], k], vk = _least_squares(a, b)
             designs.append((a, vk, b))

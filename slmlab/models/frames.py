@@ -16,6 +16,7 @@ Three kinds of set (README, "Bring your own measured dot centres"):
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from ..checks import STAGE_SEQUENCES
 from ..errors import SlmlabError
@@ -55,11 +56,13 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
 
     Rows need all four image coordinates; the static ``grid`` pair is not used (it is another plate).
     """
-    pts = cal.points[cal.points["sequence"] != "grid"]
-    pts = pts[pts[IMAGE_COLUMNS].notna().all(axis=1)]
+    points = cal.points
+    sequence = points["sequence"].to_numpy()
+    seen = ~np.isnan(points[IMAGE_COLUMNS].to_numpy(float)).any(axis=1)
     if mode not in ("auto", "moves", "zstack", "target"):
         raise SlmlabError(f"unknown mode {mode!r}; use 'auto', 'moves', 'zstack' or 'target'")
     if cal.known_target and mode in ("auto", "target"):
+        pts = points[(sequence != "grid") & seen]
         world = cal.world(pts)
         keep = np.isfinite(world).all(axis=1)
         pts, world = pts[keep], world[keep]
@@ -70,13 +73,11 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
         return pts, world, "target"
     if mode == "target":
         raise SlmlabError("mode 'target' needs a known-target set (columns x_mm, y_mm, z_mm)", cal.path)
-    pts = pts[pts["sequence"].isin(SEQUENCES)]
-    pts = pts[pts.groupby("sequence")["position"].transform("nunique") >= 2]
+    rows, lateral = _moving_rows(sequence, seen, points["position"].to_numpy(), points[STAGE].to_numpy(float))
+    pts = points[rows]
     if len(pts) == 0:
         raise SlmlabError("needs sequences with stage motion (X, Y, Z or V) seen in both views, or a known target "
                           "(x_mm, y_mm, z_mm)", cal.path)
-    moved = pts.groupby("sequence")[STAGE].agg(lambda s: float(s.max() - s.min()))
-    lateral = bool((moved[["stage_x_mm", "stage_y_mm"]].to_numpy() > 0).any())
     if mode == "auto":
         mode = "moves" if lateral else "zstack"
     if mode == "moves" and not lateral:
@@ -91,6 +92,21 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
         world = world + np.column_stack([plate_xy(pts["row"], pts["col"], plate), np.zeros(len(pts))])
     check_axes(world, mode, cal.path)
     return pts, world, mode
+
+
+def _moving_rows(sequence, seen, position, stage) -> tuple[np.ndarray, bool]:
+    """Which rows calibrate a set of stage moves: seen in both views (``seen``), of a stage sequence imaged at
+    two positions or more; and whether any of those sequences moves the stage in X or Y (``lateral``)."""
+    codes, names = pd.factorize(sequence)
+    rows = seen.copy()
+    lateral = False
+    for code, name in enumerate(names):
+        this = rows & (codes == code)
+        if name not in SEQUENCES or len(np.unique(position[this])) < 2:
+            rows &= ~this
+            continue
+        lateral |= bool((np.ptp(stage[this][:, :2], axis=0) > 0).any())
+    return rows, lateral
 
 
 def check_axes(world: np.ndarray, mode: str, path=None) -> None:

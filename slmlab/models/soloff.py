@@ -342,7 +342,7 @@ def _held_out(pts, world, w, options) -> dict:
     if len(pts) > DEGREE_ROWS:  # the degrees are chosen on every k-th dot: a ranking, not the fit, needs them
         keep = thin_dots(pts, DEGREE_ROWS)
         folds = [(tr & keep, te & keep) for tr, te in folds]
-    labels = dot_labels(pts)
+    labels = np.unique(dot_labels(pts), return_inverse=True)[1].ravel()  # sorted like the labels: the same bits
     out = {}
     for d in options:
         errs = []
