@@ -182,19 +182,23 @@ def _rows(cal: CalibrationSet, mode: str):
     return pts, groups, positions, target, mode
 
 
-def _means(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
-    """Weighted means ``(n, m)`` of the rows of ``x`` per group ``inv``: one sparse product (the same products
-    summed in the same order as a ``bincount`` per column, so the same bits, in one pass)."""
-    sw = np.maximum(np.bincount(inv, wts, n), 1e-300)
+def _mean_by(inv: np.ndarray, n: int, wts: np.ndarray):
+    """The weighted means ``(n, m)`` per group ``inv`` of the rows of any ``x (rows, m)``, as a function of
+    ``x``: one sparse product (the same products summed in the same order as a ``bincount`` per column, so the
+    same bits, in one pass), its matrix built once for every ``x`` that shares the groups and weights."""
+    sw = np.maximum(np.bincount(inv, wts, n), 1e-300)[:, None]
     groups = sparse.csc_matrix((wts, inv, np.arange(len(inv) + 1)), shape=(n, len(inv)))  # one row per column
-    return (groups @ x) / sw[:, None]
+    return lambda x: (groups @ x) / sw
 
 
-def _centred(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
-    """``x`` less the weighted mean of its group (:func:`_means`); one group (a set whose world positions are
-    known up to one constant) broadcasts its mean row instead of gathering it per row."""
-    means = _means(x, inv, n, wts)
-    return x - (means if n == 1 else means[inv])
+def _means(x: np.ndarray, inv: np.ndarray, n: int, wts: np.ndarray) -> np.ndarray:
+    """Weighted means ``(n, m)`` of the rows of ``x`` per group ``inv`` (:func:`_mean_by`)."""
+    return _mean_by(inv, n, wts)(x)
+
+
+def _per_row(means: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Group means ``(n, m)`` for each row of groups ``inv``; one group's mean row broadcasts as it is."""
+    return means if len(means) == 1 else means[inv]
 
 
 def _design(pc, pm, theta, pinv, cols, sq) -> np.ndarray:
@@ -262,8 +266,9 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
     per_group = np.bincount(inv, minlength=n_g)
     dof_dots = np.mean(per_group[inv] / np.maximum(per_group[inv] - 1, 1)) if n_g > 1 else 1.0
     for it in range(iterations):
-        pc, sc = _centred(phi, inv, n_g, wts), _centred(target, inv, n_g, wts)
-        pm, sm = _means(pc, pinv, n_p, wts), _means(sc, pinv, n_p, wts)
+        by_group, by_position = _mean_by(inv, n_g, wts), _mean_by(pinv, n_p, wts)
+        pc, sc = phi - _per_row(by_group(phi), inv), target - _per_row(by_group(target), inv)
+        pm, sm = by_position(pc), by_position(sc)
         pc_columns = np.asfortranarray(pc)  # the designs are built and multiplied column by column
         coef = np.zeros((m, 3))
         designs = []
@@ -276,7 +281,7 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             designs.append((a, vk, b))
         res = sc - pc @ coef
         n_t = np.bincount(pinv, wts, n_p)
-        rm = _means(res, pinv, n_p, wts)
+        rm = by_position(res)
         within = res - rm[pinv]
         if variance is None:
             dof_pos = np.mean(n_t[pinv] / np.maximum(n_t[pinv] - 1, 1))
