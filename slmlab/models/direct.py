@@ -328,9 +328,8 @@ def _held_out_error(phi, target, groups, positions, folds, variance, precision, 
     for train, test in folds:
         f = _solve(phi[train], target[train], groups[train], positions[train], variance=variance,
                    precision=precision[train], mask=mask)
-        lookup = dict(zip(f["labels"].tolist(), range(len(f["labels"]))))
-        idx = np.array([lookup.get(g, -1) for g in groups[test].tolist()])
-        ok = idx >= 0
+        idx = np.minimum(np.searchsorted(f["labels"], groups[test]), len(f["labels"]) - 1)  # labels are sorted
+        ok = f["labels"][idx] == groups[test]
         if not ok.any():
             continue
         e = phi[test][ok] @ f["coef"] + f["offsets"][idx[ok]] - target[test][ok]
