@@ -541,7 +541,9 @@ def _streaks(w: int, h: int, depth: float, rng: np.random.Generator) -> np.ndarr
         amp = depth * rng.uniform(-1, 1)
         col = np.exp(-0.5 * ((x - x0) / width) ** 2).astype(np.float32)
         fade = (1 + 0.5 * np.sin(2 * np.pi * (rng.uniform(0.3, 1.5) * y + rng.uniform(0, 1)))).astype(np.float32)
-        out += np.float32(amp) * fade[:, None] * col[None, :]
+        band = np.flatnonzero(col)  # the columns the band reaches (elsewhere it adds zero: the same sum)
+        lo, hi = (band[0], band[-1] + 1) if len(band) else (0, 0)
+        out[:, lo:hi] += np.float32(amp) * fade[:, None] * col[None, lo:hi]
     return out
 
 
