@@ -405,9 +405,12 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
                      fontsize=9)
     axes[0].set_ylabel("S [%]")
     handles = [plt.Rectangle((0, 0), 1, 1, color=colours[c]) for c in "XYZ"]
-    handles += [plt.Line2D([], [], color="k", marker="_", ms=12, mew=2, ls=""),
-                plt.Line2D([], [], color="0.4", ls="--", lw=0.8)]
-    labels = [f"{c} component of the residual" for c in "XYZ"] + ["the paper's reported value", "95 %"]
+    labels = [f"{c} component of the residual" for c in "XYZ"]
+    if reference:  # the paper's values are in the legend only where they are drawn
+        handles.append(plt.Line2D([], [], color="k", marker="_", ms=12, mew=2, ls=""))
+        labels.append("the paper's reported value")
+    handles.append(plt.Line2D([], [], color="0.4", ls="--", lw=0.8))
+    labels.append("95 %")
     axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=5, fontsize=8, frameon=False)
     if title:
         axes[0].figure.suptitle(title, fontsize=10)
@@ -583,7 +586,7 @@ def plot_leave_one_plane_out(table, axes=None):
         ax.set_xlabel("left-out plane Z [mm]")
         ax.set_title(c, fontsize=10)
         ax.set_ylim(bottom=0)
-    axes[0].set_ylabel("left-out plane [µm]")
+    axes[0].set_ylabel("left-out plane: RMS error, 1σ [µm]")
     handles, labels = axes[0].get_legend_handles_labels()   # one legend under the panels, over no line
     axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 3), fontsize=7)
     return axes
