@@ -417,9 +417,12 @@ def plot_s_bars(s_table, axes=None, *, reference: dict | None = None, title: str
     return axes
 
 
-def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, title: str = "", ylim_mm: float | None = None):
+def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, z_interval_mm: float | None = None,
+                         title: str = "", ylim_mm: float | None = None):
     """Figs 13–15 and 17: the nine residual elements against the displacement along the sequence's axis,
-    3 × 3 panels (rows: X, Y, Z sequences; columns: X, Y, Z components), the ±interval (RA3) drawn."""
+    3 × 3 panels (rows: X, Y, Z sequences; columns: X, Y, Z components), the ±interval (RA3, dashed) drawn in
+    every panel as in the paper; ``z_interval_mm``: also the Z components' own requirement (§6: RA5), dotted in
+    their column, so that a Z element inside it but outside RA3 is seen to meet it."""
     if axes is None:
         _, axes = new_figure(3, 3, width_in=10.0, height_in=8.0, sharex="row")
     for r, seq in enumerate("XYZ"):
@@ -427,8 +430,14 @@ def plot_residual_panels(res, axes=None, *, interval_mm: float = 0.01, title: st
         for c, comp in enumerate("XYZ"):
             ax = axes[r, c]
             ax.plot(d["displacement_mm"], 1e3 * d[f"E_{comp}"], ".", ms=1.2, color="tab:blue", rasterized=True)
-            ax.axhline(1e3 * interval_mm, color="tab:red", lw=0.8, ls="--")
-            ax.axhline(-1e3 * interval_mm, color="tab:red", lw=0.8, ls="--")
+            for sign in (1, -1):
+                ax.axhline(sign * 1e3 * interval_mm, color="tab:red", lw=0.8, ls="--",
+                           label=f"±{1e3 * interval_mm:g} µm" if sign > 0 else None)
+                if comp == "Z" and z_interval_mm is not None:
+                    ax.axhline(sign * 1e3 * z_interval_mm, color="tab:purple", lw=0.9, ls=":",
+                               label=f"±{1e3 * z_interval_mm:g} µm (Z requirement)" if sign > 0 else None)
+            if r == 0 and comp == "Z" and z_interval_mm is not None:
+                ax.legend(fontsize=6, loc="upper right", framealpha=0.8)
             if ylim_mm is not None:
                 ax.set_ylim(-1e3 * ylim_mm, 1e3 * ylim_mm)
             ax.set_title(f"E$_{{{seq},{comp}}}$", fontsize=9)
