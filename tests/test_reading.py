@@ -116,3 +116,16 @@ def test_figures_a_reader_checks_by_eye():
     bbox = ax.get_legend().get_window_extent()
     assert bbox.x0 >= ax.get_window_extent().x1 - 1                       # the legend beside the axes, over no bar
     plt.close(ax.figure)
+
+
+def test_residual_panels_draw_the_z_components_own_requirement():
+    """Figs 13-15: RA3 (±10 µm) in every panel, as the paper draws it; in the Z components' column also RA5
+    (±15 µm), what the paper requires of Z, so a Z element between the two is seen to meet it."""
+    res = pd.DataFrame({"sequence": np.repeat(list("XYZ"), 4), "displacement_mm": np.tile([0.0, 1, 2, 3], 3),
+                        **{f"E_{c}": np.full(12, 0.012) for c in "XYZ"}})
+    axes = plots.plot_residual_panels(res, interval_mm=0.01, z_interval_mm=0.015)
+    for r in range(3):
+        for c in range(3):
+            levels = sorted({round(line.get_ydata()[0], 6) for line in axes[r, c].lines[1:]})
+            assert levels == ([-15.0, -10.0, 10.0, 15.0] if c == 2 else [-10.0, 10.0]), (r, c, levels)
+    plt.close(axes[0, 0].figure)
