@@ -561,14 +561,17 @@ def plot_cross_validation_diff(diff, axes=None, *, width_in: float = 9.0):
 def plot_accuracy_vs_positions(table, axes=None):
     """RMS displacement error over the noise floor against the number of calibration positions, per
     coordinate (``table``: :func:`slmlab.studies.workspace.accuracy_vs_positions` rows with a ``case`` column), log
-    scale."""
+    scale. The legend sits below the panels, over no line; a case with a perfect stage is drawn thinner, on top,
+    so that where a model's two lines coincide (the paper's, whose error is not the stage's) both show."""
     if axes is None:
-        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.4, sharey=True)
+        _, axes = new_figure(1, 3, width_in=9.5, height_in=3.7, sharey=True)
     for ax, c in zip(axes, "XYZ"):
         for (case, model), d in table.groupby(["case", "model"], sort=False):
             d = d.sort_values("positions")
+            thin = "perfect" in case
             ax.plot(d["positions"], d[f"{c}_vs_floor"], ls="-" if model == "direct" else "--", ms=3,
-                    marker="o" if model == "direct" else ("x" if "perfect" in case else "s"), label=f"{model}, {case}")
+                    lw=1.2 if thin else 2.6, zorder=3 if thin else 2,
+                    marker="o" if model == "direct" else ("x" if thin else "s"), label=f"{model}, {case}")
         ax.axhline(1.2, color="0.5", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
@@ -578,7 +581,8 @@ def plot_accuracy_vs_positions(table, axes=None):
         ax.set_xlabel("calibration positions")
         ax.set_title(c, fontsize=10)
     axes[0].set_ylabel("RMS error / noise floor")
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    axes[0].figure.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=7, frameon=False)
     return axes
 
 
