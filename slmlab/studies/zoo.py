@@ -7,7 +7,8 @@
   random points in the calibrated volume; per coordinate RMS error (net of one common offset, in the frame
   the design calibrates in) of each model (:func:`slmlab.calibrate`), of plain least-squares polynomials of
   degree 1–4 in the four image coordinates (:class:`slmlab.models.reference.PlainPolynomial`), and of the true model on the same
-  noisy centres (the floor).
+  noisy centres (the floor), and in the frame the calibration's commanded positions teach it
+  (:func:`commanded_frame_floor`: what the stage's errors leave to a perfect model).
 """
 
 from __future__ import annotations
@@ -19,7 +20,9 @@ import pandas as pd
 
 from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS
+from ..linefit import point_keys
 from ..models import calibrate
+from ..models.frames import world_positions
 from ..models.reference import DEGREES
 from ..outputs import table_digits
 from ..virtual.designs import DESIGNS, design_frame, simulate_design, validation_set
@@ -27,8 +30,8 @@ from ..virtual.rig_checks import physics_checks
 from .realrigs import rms_after_offset
 from .workspace import perfect_stage
 
-__all__ = ["MODELS", "POLY_DEGREES", "TARGETS", "rig_table", "compare_models", "run_zoo", "ratio_table", "target_summary",
-           "stage_free"]
+__all__ = ["MODELS", "POLY_DEGREES", "TARGETS", "FRAME_FLOOR_TARGET", "rig_table", "commanded_frame_floor",
+           "compare_models", "run_zoo", "ratio_table", "target_summary", "stage_free"]
 
 MODELS = ("auto", "pinhole")
 POLY_DEGREES = DEGREES
@@ -52,13 +55,42 @@ def rig_table(rigs) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def commanded_frame_floor(rig, cal, w: np.ndarray) -> np.ndarray:
+    """The true model's triangulation of image points ``w`` (n, 4) [px], in the frame a perfect model of the
+    optics learns from calibration set ``cal``: the best affine map (least squares over every calibration dot)
+    from the true triangulation of the calibration's noisy centres to the world positions the set commands
+    (:func:`slmlab.models.frames.world_positions`: the stage's commanded positions, plus the dot's place on its
+    plate or target; on stage moves net of one offset per dot and sequence). Returns ``(n, 3)`` [mm], up to one
+    offset.
+
+    A model takes its frame from the commanded positions, and the stage puts each position a little elsewhere
+    (positioning noise, lead and straightness errors, the same for every dot of a position). With few positions
+    their errors tilt and stretch the frame a perfect model would learn, and no calibration on those positions
+    can do better; the floor (the true model in the true frame) does not see it. The realised stage errors of
+    this set, not their expectation (:func:`slmlab.studies.workspace.commanded_frame_limit` gives that for the
+    microscope's sessions)."""
+    pts, world, mode = world_positions(cal)
+    p = rig.triangulate(pts[IMAGE_COLUMNS].to_numpy(float))
+    q = rig.triangulate(np.asarray(w, float))
+    if mode == "moves":  # one unknown offset per dot and sequence: centred out
+        key = pd.Series(point_keys(pts["row"], pts["col"]).astype(str)) + pts["sequence"].astype(str).to_numpy()
+        _, g = np.unique(key.to_numpy(), return_inverse=True)
+        g, n = g.ravel(), np.bincount(g.ravel())
+        centred = [a - np.stack([np.bincount(g, a[:, k]) / n for k in range(3)], axis=1)[g] for a in (p, world)]
+        lin, *_ = np.linalg.lstsq(centred[0], centred[1], rcond=None)
+        return q @ lin
+    lin, *_ = np.linalg.lstsq(np.column_stack([p, np.ones(len(p))]), world, rcond=None)
+    return np.column_stack([q, np.ones(len(q))]) @ lin
+
+
 def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validation: int = 1500) -> pd.DataFrame:
     """Per coordinate RMS error [µm] on a held-out validation set inside the calibrated volume
     (:func:`slmlab.virtual.designs.validation_set`) of the default model calibrated on ``design``, of each of its
     candidates as fitted on the whole set (the direct and Soloff models, the plain polynomials of degree 1–4:
     ``polynomial-d``), of the other ``models`` named (``pinhole-f``: the pinhole model started from the rig's
     true focal length) and of the true model on the same noisy centres (``floor``), in the design's frame net
-    of one common offset. ``note``: the model's settings, or why it could not calibrate; ``chosen_for``: the
+    of one common offset, and the same in the frame the set's commanded positions teach a perfect model
+    (``frame floor``: :func:`commanded_frame_floor`). ``note``: the model's settings, or why it could not calibrate; ``chosen_for``: the
     coordinates the default took from that candidate; ``attrs["selection"]``: the default's evidence (its
     model file's ``calibration.selection``)."""
     cal = simulate_design(rig, design, seed=seed)
@@ -67,7 +99,8 @@ def compare_models(rig, design: str, *, seed: int = 1, models=MODELS, n_validati
     w = val.points[IMAGE_COLUMNS].to_numpy(float)
     truth = val.truth[["X_mm", "Y_mm", "Z_mm"]].to_numpy(float) @ frame.T
     origin = np.asarray(val.meta["simulator"]["stage_origin_mm"])
-    rows = [("floor", rig.microscope_to_stage(rig.triangulate(w), origin) @ frame.T, "", "")]
+    rows = [("floor", rig.microscope_to_stage(rig.triangulate(w), origin) @ frame.T, "", ""),
+            ("frame floor", commanded_frame_floor(rig, cal, w), "the true model in the commanded frame", "")]
     default = calibrate(cal)
     rows.append(("auto", default.reconstruct(w), default.describe(), ""))
     for label, m in getattr(default, "candidates", {}).items():
@@ -126,6 +159,8 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
             v = g.loc[model, f"{c}_um"]
             row[f"{c}_um"] = v
             row[f"{c}_vs_floor"] = v / g.loc["floor", f"{c}_um"]
+            if "frame floor" in g.index:
+                row[f"{c}_vs_frame_floor"] = v / g.loc["frame floor", f"{c}_um"]
             row[f"{c}_vs_polynomial"] = v / g.loc[polys, f"{c}_um"].min()
             row[f"{c}_vs_candidates"] = v / g.loc[own, f"{c}_um"].min()
         rows.append(row)
@@ -134,13 +169,18 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
 
 #: the issue's targets for the default on every rig and design, per coordinate
 TARGETS = {"vs_floor": 1.2, "vs_polynomial": 1.0, "vs_candidates": 1.05}
+#: the floor's target again, against the floor in the commanded frame (:func:`commanded_frame_floor`): what is
+#: left to the model once the stage's errors have had their share
+FRAME_FLOOR_TARGET = 1.2
 
 
 def target_summary(ratios: pd.DataFrame) -> pd.DataFrame:
-    """How many rig × design × coordinate cells meet each target (:data:`TARGETS`), the worst cell and the
+    """How many rig × design × coordinate cells meet each target (:data:`TARGETS`, and
+    :data:`FRAME_FLOOR_TARGET` where ``ratios`` has the floor in the commanded frame), the worst cell and the
     median ratio."""
     rows = []
-    for key, limit in TARGETS.items():
+    extra = {"vs_frame_floor": FRAME_FLOOR_TARGET} if "X_vs_frame_floor" in ratios else {}
+    for key, limit in {**TARGETS, **extra}.items():
         cells = ratios.melt(id_vars=["rig", "design"], value_vars=[f"{c}_{key}" for c in "XYZ"])
         worst = cells.loc[cells["value"].idxmax()]
         rows.append({"ratio": key, "target": limit, "cells": len(cells),
