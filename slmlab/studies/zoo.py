@@ -63,11 +63,15 @@ def commanded_frame_floor(rig, cal, w: np.ndarray) -> np.ndarray:
     plate or target; on stage moves net of one offset per dot and sequence). Returns ``(n, 3)`` [mm], up to one
     offset.
 
-    A model takes its frame from the commanded positions, and the stage puts each position a little elsewhere
-    (positioning noise, lead and straightness errors, the same for every dot of a position). With few positions
-    their errors tilt and stretch the frame a perfect model would learn, and no calibration on those positions
-    can do better; the floor (the true model in the true frame) does not see it. The realised stage errors of
-    this set, not their expectation (:func:`slmlab.studies.workspace.commanded_frame_limit` gives that for the
+    Every model here takes its frame from the commanded positions, and the stage puts each position a little
+    elsewhere (positioning noise, lead and straightness errors, the same for every dot of a position). With few
+    positions their errors tilt and stretch the frame a perfect model would learn; the floor (the true model in
+    the true frame) does not see it. For a flat plate moved in depth the stage's moves are all that say where
+    depth points, and no calibration on those positions does better than the best affine frame (up to the
+    stage's errors that no affine map describes, which a model can learn as optics). A target with depth of its
+    own (a two-level plate, a stepped target) carries a frame of its own at every position, and a model that
+    estimated each position's offset from it could go below this floor. The realised stage errors of this set,
+    not their expectation (:func:`slmlab.studies.workspace.commanded_frame_limit` gives that for the
     microscope's sessions)."""
     pts, world, mode = world_positions(cal)
     p = rig.triangulate(pts[IMAGE_COLUMNS].to_numpy(float))
