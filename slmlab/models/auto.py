@@ -8,6 +8,11 @@ Soloff model) may fit the physics better in one coordinate and worse in another;
 model for, a plain least-squares polynomial in the four image coordinates may beat both. The ``auto`` model
 (slmlab's default) lets the calibration set decide, never test data:
 
+0. **The stage's own errors** (:mod:`slmlab.models.stage_errors`): where the dots' world positions are known
+   at several stage positions and the pinhole pair describes the rig, each position's offset from its command
+   (the same for every dot of the position) is measured from the pinhole pair's residuals and the commanded
+   positions are corrected by it before any candidate is fitted; the offsets and why they were or were not
+   applied are in the model file (``calibration.selection.stage``).
 1. **Candidates** (:data:`CANDIDATES`): the direct model, the Soloff model (where the dots' world positions
    are known) and the plain polynomial of each degree up to 4 (:class:`slmlab.models.reference.PlainPolynomial`;
    on stage moves the same polynomial of the four image coordinates estimated by the direct model's solver,
@@ -33,10 +38,11 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    Where the pinhole does not fit (refraction through a window, a lens a pinhole cannot describe), a plain
    polynomial is dropped where it so differs from every depth-pinned candidate (direct, soloff): a cubic
    through two planes can put the midplane far off while fitting both planes to the noise.
-   A known blind spot: held-out dots share their position's stage error (positioning noise, lead and
-   straightness errors: the same for every dot of a position), and a held-out plane's own offset goes out with
-   the fold's, so no fold sees how much of the stage's per-position error a candidate learns as optics (a
-   polynomial of degree 4 can follow all five planes' offsets). Where the stage is much worse than the
+   A known blind spot, where step 0 does not apply (stage moves, a rig the pinhole pair does not describe):
+   held-out dots share their position's stage error (positioning noise, lead and straightness errors: the same
+   for every dot of a position), and a held-out plane's own offset goes out with the fold's, so no fold sees
+   how much of the stage's per-position error a candidate learns as optics (a polynomial of degree 4 can
+   follow all five planes' offsets). Where the stage is much worse than the
    centroids (a stereo microscope on a micrometre stage: 0.3 µm per move against a 0.07 µm floor) that is
    most of the error a user sees in X and Y, the held-out error is confidently wrong (every fold prefers the
    higher degree) and a set with few positions cannot tell the stage from the optics (the direct model's
@@ -64,6 +70,7 @@ from .direct import check_options
 from .folds import PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, held_out_errors, row_folds, thin_dots
 from .frames import world_positions
 from .reference import DEGREES as POLYNOMIAL_DEGREES
+from .stage_errors import corrected_for_stage
 
 __all__ = ["CANDIDATES", "PINHOLE", "PINHOLE_MISFIT", "TIE", "MARGIN", "BETWEEN_DEPTHS", "COMPARISON_ROWS", "candidate_list", "choose",
            "selection_table", "AutoModel"]
@@ -187,6 +194,10 @@ class AutoModel(Model):
         given = {"mode": mode, "variables": variables, "length_reference": length_reference,
                  "stage_scale_sigma": stage_scale_sigma, "centroid_noise_px": centroid_noise_px}
         pts, world, mode = world_positions(cal, mode)
+        cal, stage = corrected_for_stage(cal, mode, PINHOLE)
+        if stage["applied"]:  # every candidate calibrates on the corrected positions, a known target
+            given["mode"] = "target"
+            pts, world, _ = world_positions(cal, "target")
         cands, skipped = candidate_list([str(c) for c in np.atleast_1d(candidates)], world, mode)
         if not cands:
             raise SlmlabError(f"none of the candidates {', '.join(map(str, np.atleast_1d(candidates)))} can "
@@ -209,7 +220,7 @@ class AutoModel(Model):
                                      f"{fold_description(pts, mode, diagonal=True)}, on {len(_thinned(cal).points)} rows"),
                      "rule": (f"per coordinate the plain polynomial with the smallest held-out RMS, unless another "
                               f"candidate is lower by more than {MARGIN:.0%}; ties within {TIE:.0%}"),
-                     "skipped": skipped}
+                     "skipped": skipped, "stage": stage}
         return cls(choice, models, fitted,
                    options={**primary.options, "candidates": [str(c) for c in np.atleast_1d(candidates)]},
                    calibration={**primary.calibration, "selection": selection})

@@ -70,7 +70,9 @@ def commanded_frame_floor(rig, cal, w: np.ndarray) -> np.ndarray:
     depth points, and no calibration on those positions does better than the best affine frame (up to the
     stage's errors that no affine map describes, which a model can learn as optics). A target with depth of its
     own (a two-level plate, a stepped target) carries a frame of its own at every position, and a model that
-    estimated each position's offset from it could go below this floor. The realised stage errors of this set,
+    used it could go below this floor; the default measures each position's offset with the pinhole pair where
+    it describes the rig (:mod:`slmlab.models.stage_errors`) but keeps the commanded frame, so this floor is
+    also its own. The realised stage errors of this set,
     not their expectation (:func:`slmlab.studies.workspace.commanded_frame_limit` gives that for the
     microscope's sessions)."""
     pts, world, mode = world_positions(cal)

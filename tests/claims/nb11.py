@@ -32,7 +32,8 @@ def check_zoo(t: Tables, size: str) -> None:
     """Sections "Every rig, every design" and "Where the default loses": the targets' counts are those of the
     per-cell table; the default's median ratio to the best plain polynomial (hindsight) is 1 and to its own best
     candidate within 5 %; every cell more than 5 % above the best polynomial is listed with its choice; at full
-    size (README, Known limits) each target is met in about two thirds of the cells, most cells that miss
+    size (README, Known limits) the floor's and the polynomial's targets are met in about 70 % of the cells,
+    the candidates' in over 80 % and the floor in the commanded frame's in over 90 %, most cells that miss
     the floor's are cells where no candidate, chosen with hindsight, reaches it, and the floor in the commanded
     frame (the stage's share) is nowhere below the floor and is met in more cells."""
     ratios, targets, losses = t("ext11_default_ratios"), t("ext11_targets").set_index("ratio"), t("ext11_losses")
@@ -50,9 +51,11 @@ def check_zoo(t: Tables, size: str) -> None:
     claim(over == set(zip(losses["rig"], losses["design"], losses["axis"])), "ext11_losses", "cells",
           "every cell more than 5 % above the best polynomial is listed, and no other")
     if size == "full":
-        for key in ("vs_floor", "vs_polynomial", "vs_candidates"):
+        for key, (lo, hi) in {"vs_floor": (0.6, 0.8), "vs_polynomial": (0.6, 0.8), "vs_candidates": (0.8, 0.9),
+                              "vs_frame_floor": (0.9, 1.0)}.items():
             share = targets.loc[key, "met"] / targets.loc[key, "cells"]
-            claim(0.55 <= share <= 0.8, "ext11_targets", key, f"about two thirds of the cells meet it ({share:.2f})")
+            claim(lo <= share <= hi, "ext11_targets", key, f"{lo:.0%} to {hi:.0%} of the cells meet it ({share:.2f}; "
+                  "README, Known limits)")
         errors = t("ext11_zoo_errors")
         cand = errors[~errors["model"].isin(["floor", "frame floor", "auto"])].groupby(["rig", "design"])[["X_um", "Y_um", "Z_um"]].min()
         floor = errors[errors["model"] == "floor"].set_index(["rig", "design"])[["X_um", "Y_um", "Z_um"]]
