@@ -66,9 +66,10 @@ def commanded_frame_floor(rig, cal, w: np.ndarray) -> np.ndarray:
     Every model here takes its frame from the commanded positions, and the stage puts each position a little
     elsewhere (positioning noise, lead and straightness errors, the same for every dot of a position). With few
     positions their errors tilt and stretch the frame a perfect model would learn; the floor (the true model in
-    the true frame) does not see it. For a flat plate moved in depth the stage's moves are all that say where
-    depth points, and no calibration on those positions does better than the best affine frame (up to the
-    stage's errors that no affine map describes, which a model can learn as optics). A target with depth of its
+    the true frame) does not see it. It is large wherever the stage errs systematically (lead, straightness),
+    not only with few positions. It is not a strict floor: a model can also learn, as part of its map, the
+    stage's errors that no affine map describes (on stage moves the default is below it in places). For a flat
+    plate moved in depth the stage's moves are all that say where depth points. A target with depth of its
     own (a two-level plate, a stepped target) carries a frame of its own at every position, and a model that
     used it could go below this floor; the default measures each position's offset with the pinhole pair where
     it describes the rig (:mod:`slmlab.models.stage_errors`) but keeps the commanded frame, so this floor is
@@ -149,7 +150,8 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
     """Per rig and design, ``model``'s error (default: the default model) per coordinate over the noise floor
     (``{c}_vs_floor``), over the best plain polynomial of degree 1–4 chosen with hindsight on the truth
     (``{c}_vs_polynomial``) and over the best of the default's own candidates chosen the same way
-    (``{c}_vs_candidates``); ``choice``: what the default took for each coordinate. Rounded as the tables are
+    (``{c}_vs_candidates``: every candidate it fitted, the pinhole pair among them where it was one);
+    ``choice``: what the default took for each coordinate. Rounded as the tables are
     written (:func:`slmlab.outputs.table_digits`), so that a target is met or missed as the table shows it: a
     ratio of 1.00004 (the chosen candidate, reconstructed beside the others) is a tie, not a loss."""
     rows = []
@@ -157,7 +159,7 @@ def ratio_table(results: pd.DataFrame, model: str = "auto") -> pd.DataFrame:
         g = g.set_index("model")
         polys = [m for m in g.index if m.startswith("polynomial-")]
         own = [m for m in g.index if m not in ("floor", "auto") and g.loc[m, "chosen_for"] is not None
-               and m in polys + ["direct", "soloff"] and np.isfinite(g.loc[m, "X_um"])]
+               and m in polys + ["direct", "soloff", "pinhole"] and np.isfinite(g.loc[m, "X_um"])]
         row = {"rig": rig, "design": design,
                "choice": ", ".join(f"{c}: {k}" for k in own for c in str(g.loc[k, "chosen_for"] or "")
                                    if c in "XYZ") if model == "auto" else model}
