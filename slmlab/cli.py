@@ -230,6 +230,8 @@ def _evaluate(a) -> int:
         print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         for label, why in sel.get("skipped", {}).items():
             print(f"  not a candidate: {label}: {why}")
+        if stage := sel.get("stage"):  # the stage's own errors (slmlab.models.stage_errors)
+            print(f"  stage positions {'corrected' if stage['applied'] else 'as commanded'}: {stage['why']}")
         print()
     print(evaluate(model, cal).text())
     return 0

@@ -69,3 +69,22 @@ def test_the_default_on_a_micrometre_stage_is_near_what_its_design_allows(design
     assert t.attrs["selection"]["stage"]["applied"]
     assert calibrate(simulate_design(rig_by_name("greenough"), design, seed=1)).describe() == \
         t.loc["auto", "note"]
+
+
+def test_evaluate_says_whether_the_stage_positions_were_corrected(tmp_path):
+    """A user's path: simulate a Greenough Z stack, calibrate the default, evaluate: the printed choice ends with
+    whether the stage positions were corrected and by how much; the model file holds the offsets."""
+    import json
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "slmlab", *args], capture_output=True, text=True, timeout=300)
+
+    set_dir, model = tmp_path / "stack", tmp_path / "model.json"
+    assert run("simulate", "--rig", "greenough", "--design", "zstack-5", str(set_dir)).returncode == 0
+    assert run("calibrate", str(set_dir), "--out", str(model)).returncode == 0
+    out = run("evaluate", str(model), str(set_dir)).stdout
+    assert "  stage positions corrected: each position's offset from the pinhole pair's residuals" in out
+    stage = json.loads(model.read_text())["calibration"]["selection"]["stage"]
+    assert stage["applied"] and len(stage["offsets_um"]) == 5
