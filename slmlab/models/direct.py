@@ -299,6 +299,8 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             new = (r < 10.0 * scale).astype(float)                         # reject beyond 10 robust sigmas
         if it >= 4 and np.allclose(new, wts, atol=1e-4):
             break
+        if variance is not None and np.array_equal(new, wts) and (it >= 3 or (new == 1.0).all()):
+            break  # a fixed point (θ fixed, the same weights): every further iteration repeats this one, bit for bit
         wts = new
     offsets = _means(target - phi @ coef, inv, n_g, wts)
     cov = np.zeros((3, m, m))
