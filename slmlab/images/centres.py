@@ -388,6 +388,9 @@ def _best_per_sector(k: np.ndarray, angle: np.ndarray, score: np.ndarray, sector
 #: [1/px] that maps an offset from the centre onto the unit circle (the outline), the blur ``w`` [radii];
 #: then the linear ones: the background's quadratic surface (6) and the dot's depth, a plane (3) [grey levels]
 FIT_NONLINEAR = 6
+#: how far a fitted centre may move from its start and still be taken: this many pixels, or this share of the
+#: dot's radius if more (a fit that strays to a neighbouring dot moves by a pitch, several radii)
+FIT_MOVE_PX, FIT_MOVE_RADII = 2.0, 0.25
 FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
 
 
@@ -454,7 +457,8 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
     ``radius`` and ``blur`` [px] at ``start`` ``(n, 2)`` [px]; ``censored`` ``(n, P)`` pixels (saturated) count only
     where the model is below them. Returns
     the parameters ``(n, 15)`` and whether each fit converged to a dot (a finite, positive-definite outline
-    within 2 px of the start)."""
+    within :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of the dot's radius of the start, whichever is more:
+    a large dot beside a steep glare has its moments' start pulled by more than 2 px)."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur)
@@ -477,7 +481,7 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
             break
     s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
     ok = (np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
-          & (np.hypot(*(theta[:, :2] - start).T) < 2.0))
+          & (np.hypot(*(theta[:, :2] - start).T) < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius)))
     return theta, ok
 
 
