@@ -244,41 +244,37 @@ def _crossings(g, ox, oy):
     """Half-contrast crossings between horizontally and vertically adjacent pixels of the patches ``g``
     (contrast minus the level): dot index, x, y (offsets from the patch centre) [px]."""
     out = []
-    for axis in (2, 1):
-        a = g[:, :, :-1] if axis == 2 else g[:, :-1, :]
-        b = g[:, :, 1:] if axis == 2 else g[:, 1:, :]
-        k, i, j = np.nonzero((a > 0) != (b > 0))
-        t = a[k, i, j] / (a[k, i, j] - b[k, i, j])
-        x = ox[i, j] + (t if axis == 2 else 0)
-        y = oy[i, j] + (t if axis == 1 else 0)
+    n, s, _ = g.shape
+    flat, above = g.reshape(-1), (g > 0).reshape(-1)
+    for step in (1, s):                  # the neighbour to the right, then below (flat indices)
+        q = np.flatnonzero(above[:-step] != above[step:])
+        k, rem = np.divmod(q, s * s)
+        i, j = np.divmod(rem, s)
+        keep = (j < s - 1) if step == 1 else (i < s - 1)   # not across a patch's right or bottom edge
+        q, k, i, j = q[keep], k[keep], i[keep], j[keep]
+        a = flat[q]
+        t = a / (a - flat[q + step])
+        x = ox[i, j] + (t if step == 1 else 0)
+        y = oy[i, j] + (t if step == s else 0)
         out.append((k, x, y))
     k, x, y = (np.concatenate(v) for v in zip(*out))
     order = np.argsort(k, kind="stable")
     return k[order], x[order], y[order]
 
 
-_UPPER = [(p, q) for p in range(5) for q in range(p, 6)]   # the distinct entries of [AᵀA | Aᵀb]
-
-
 def _conic_fit(k: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares conics ``x² + Bxy + Cy² + Dx + Ey + F = 0`` through the points ``x, y`` of each dot
-    ``k`` (sorted by dot; normal equations summed per dot by ``reduceat``). Returns ``(B, C, D, E, F)``
-    ``(n, 5)`` and whether each dot had at least 6 points."""
-    t = np.column_stack([x * y, y * y, x, y, np.ones_like(x), -x * x])
-    prod = np.column_stack([t[:, p] * t[:, q] for p, q in _UPPER])
+    ``k`` (sorted by dot; each dot's rows laid side by side, zero-padded, so that one batched product gives
+    every dot's normal equations). Returns ``(B, C, D, E, F)`` ``(n, 5)`` and whether each dot had at least 6
+    points."""
     count = np.bincount(k, minlength=n)
     ok = count >= 6
-    sums = np.zeros((n, len(_UPPER)))
+    rows = np.zeros((n, max(int(count.max(initial=0)), 1), 6))
     if len(x):
-        starts = np.r_[0, np.cumsum(count)[:-1]]
-        has = count > 0
-        sums[has] = np.add.reduceat(prod, starts[has], axis=0)
-    full = np.zeros((n, 5, 6))
-    for c, (p, q) in enumerate(_UPPER):
-        full[:, p, q] = sums[:, c]
-        if q < 5:
-            full[:, q, p] = sums[:, c]
-    ata, atb = full[:, :, :5], full[:, :, 5]
+        slot = np.arange(len(k)) - np.r_[0, np.cumsum(count)[:-1]][k]
+        rows[k, slot] = np.column_stack([x * y, y * y, x, y, np.ones_like(x), -x * x])
+    full = rows.transpose(0, 2, 1) @ rows
+    ata, atb = full[:, :5, :5], full[:, :5, 5]
     ata[~ok] = np.eye(5)
     return np.linalg.solve(ata, atb[..., None])[..., 0], ok
 
@@ -375,12 +371,15 @@ def _best_per_sector(k: np.ndarray, angle: np.ndarray, score: np.ndarray, sector
     equal angular sectors [rad]."""
     sec = np.minimum(((angle + np.pi) / (2 * np.pi) * sectors).astype(int), sectors - 1)
     key = k * sectors + sec
-    # one float sort: the key, then the lowest score first (score scaled into [0, 1) keeps keys apart)
-    s = score - score.min(initial=0.0)
-    order = np.argsort(key + s / (s.max(initial=0.0) + 1.0))
-    ks = key[order]
-    first = np.r_[True, ks[1:] != ks[:-1]]
-    return np.sort(order[first])
+    size = int(key.max(initial=-1)) + 1
+    low = np.full(size, np.inf)
+    np.fmin.at(low, key, score)                          # each sector's lowest score (NaN ignored), no sort
+    first = np.full(size, len(key))
+    win = np.flatnonzero(score == low[key])
+    np.minimum.at(first, key[win], win)                  # of ties, the first point
+    chosen = np.zeros(len(key), bool)
+    chosen[first[first < len(key)]] = True
+    return np.flatnonzero(chosen)
 
 
 # ------------------------------------------------------------------------------------------ model fit

@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from itertools import permutations
 
@@ -67,8 +68,7 @@ class LatticeModel:
     def terms(self, ab: np.ndarray) -> np.ndarray:
         """Monomials of degree 2 … ``degree`` of the normalised lattice coordinates ``(n, m)``."""
         s = (ab - self.centre) / self.half
-        e = np.array([(i, j) for i in range(self.degree + 1) for j in range(self.degree + 1 - i) if i + j >= 2],
-                     int).reshape(-1, 2)
+        e = _exponents(self.degree)
         ones = np.ones((len(ab), 1))
         px = np.cumprod(np.hstack([ones, np.repeat(s[:, :1], self.degree, axis=1)]), axis=1)
         py = np.cumprod(np.hstack([ones, np.repeat(s[:, 1:], self.degree, axis=1)]), axis=1)
@@ -94,14 +94,21 @@ class LatticeModel:
         """Local lattice steps ``(n, 2, 2)`` [px]: image displacement of one unit of ``a`` (``[:, :, 0]``)
         and of ``b`` (``[:, :, 1]``), by central differences (on the first level's model)."""
         ab = np.asarray(ab, float).reshape(-1, 2)
-        da = (self.base(ab + [0.5, 0]) - self.base(ab - [0.5, 0]))
-        db = (self.base(ab + [0, 0.5]) - self.base(ab - [0, 0.5]))
-        return np.stack([da, db], axis=2)
+        w = self.base(np.vstack([ab + [0.5, 0], ab - [0.5, 0], ab + [0, 0.5], ab - [0, 0.5]])).reshape(4, -1, 2)
+        return np.stack([w[0] - w[1], w[2] - w[3]], axis=2)
 
     def shifted(self, offset) -> "LatticeModel":
         """The same model moved by ``offset`` ``(2,)`` [px] in the image (a translation after the homography)."""
         t = np.array([[1.0, 0.0, offset[0]], [0.0, 1.0, offset[1]], [0.0, 0.0, 1.0]])
         return LatticeModel(t @ self.h, self.coef, self.degree, self.centre, self.half)
+
+
+@functools.lru_cache(maxsize=8)
+def _exponents(degree: int) -> np.ndarray:
+    """Exponents ``(m, 2)`` of the monomials of degree 2 … ``degree`` in ``a, b`` (:meth:`LatticeModel.terms`)."""
+    e = np.array([(i, j) for i in range(degree + 1) for j in range(degree + 1 - i) if i + j >= 2], int).reshape(-1, 2)
+    e.flags.writeable = False
+    return e
 
 
 def _odd(ab: np.ndarray) -> np.ndarray:
