@@ -74,11 +74,13 @@ class Flat:
     coherence: np.ndarray | None = None
 
 
-def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: bool = False) -> Flat:
+def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: bool = False,
+            crop: int | None = None) -> Flat:
     """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
     ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, plus per column the mean offset from it of
     the pixels outside ``ring_in`` to the patch's edge, where they differ by more than noise: window streaks
-    run along the columns)."""
+    run along the columns); ``crop``: the contrast (and ``ox, oy``, ``column``) only within this many pixels of
+    the centre (the ring and the columns are measured on the whole patch all the same)."""
     half = int(np.ceil(ring_in + 5))
     p, base = gather_patches(img, centres, half)
     p = p.astype(np.float32)
@@ -88,10 +90,15 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    background = _plane(coef, ox[None], oy[None])
-    column, chi, rho = _columns(p - background, (d > ring_in) & (d <= half), oy) if columns else (None,) * 3
-    if column is not None:
+    column, chi, rho = (None,) * 3
+    if columns:
+        column, chi, rho = _columns(p - _plane(coef, ox[None], oy[None]), (d > ring_in) & (d <= half), oy)
         column[(chi <= STREAKINESS) | (rho <= COHERENCE)] = 0.0
+    if crop is not None and crop < half:
+        sl = slice(half - crop, half + crop + 1)
+        p, ox, oy, column = p[:, sl, sl], ox[sl, sl], oy[sl, sl], None if column is None else column[:, sl]
+    background = _plane(coef, ox[None], oy[None])
+    if column is not None:
         background = background + column[:, None, :]
     return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi, rho)
 
@@ -342,13 +349,13 @@ def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dar
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
+    reach = dot_reach(img, c, radii, dark) if reach is None else reach
+    # crossings only within the reach (+ 2 px)
+    flat = flatten(img, c, reach + 1, dark, columns, crop=int(np.ceil(reach)) + 2)
     r = float(np.median(radii))
     core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
     level = 0.5 * np.median(flat.contrast[:, core], axis=1)
-    h0, h1 = flat.ox.shape[0] // 2, int(np.ceil(reach)) + 2      # crossings only within the reach (+ 2 px)
-    win = slice(max(h0 - h1, 0), h0 + h1 + 1)
-    k, x, y = _crossings(flat.contrast[:, win, win] - level[:, None, None], flat.ox[win, win], flat.oy[win, win])
+    k, x, y = _crossings(flat.contrast - level[:, None, None], flat.ox, flat.oy)
     f = c - flat.base
     for _ in range(iterations):
         dx, dy = x - f[k, 0], y - f[k, 1]

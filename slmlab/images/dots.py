@@ -371,7 +371,9 @@ def _track(prev: _Level | None, cur: _Level) -> None:
     _, first = np.unique(parent[order], return_index=True)
     win = order[first]
     cur.ids[win] = prev.ids[parent[win]]
-    free = np.setdiff1d(np.arange(len(prev.xy)), parent[win])
+    taken = np.zeros(len(prev.xy), bool)
+    taken[parent[win]] = True
+    free = np.flatnonzero(~taken)
     rest = np.flatnonzero(cur.ids < 0)
     if len(free) == 0 or len(rest) == 0:
         return

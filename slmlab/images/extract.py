@@ -161,7 +161,7 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
         return loc
     radius = _dot_radius(loc)
     loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on])
-    con = loc.con.again(loc.clean) if loc.hot else loc.con
+    con = (lambda: loc.con.again(loc.clean)) if loc.hot else (lambda: loc.con)   # taken only if a node is searched
     grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
     loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
     loc.ab, loc.xy, loc.area, loc.hole, loc.src = _lattice_dots(loc.cand, loc.fit, loc.searched)
@@ -177,19 +177,21 @@ def _search_box(fit: LatticeFit, rows: int | None, cols: int | None) -> int:
     return max(0, int(max(rows, cols) - min(a1 - a0, b1 - b0) - 1))
 
 
-def _recover(con: Contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, margin: float, repeat: bool):
-    """Nodes of the box grown by ``grow`` lines without a candidate, searched (:func:`search_missing`);
-    with ``repeat``, the box keeps growing by one line while lines yield dots. Returns searched nodes,
-    found mask, positions [px] and significance."""
+def _recover(contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, margin: float, repeat: bool):
+    """Nodes of the box grown by ``grow`` lines without a candidate, searched (:func:`search_missing`) on the
+    :class:`Contrast` that ``contrast()`` returns (computed only if a node is searched: the image less its hot
+    pixels takes a new one); with ``repeat``, the box keeps growing by one line while lines yield dots. Returns
+    searched nodes, found mask, positions [px] and significance."""
     dots, radius = cand.xy[fit.on], float(np.sqrt(np.median(cand.area[fit.on]) / np.pi))
     done = {tuple(n) for n in fit.node[fit.on]}
-    out = []
+    out, con = [], None
     while True:
         nodes = fit.nodes(grow)
         p = fit.model.predict(nodes)
         todo = np.array([tuple(n) not in done for n in nodes]) & inside_image(p, shape, margin)
         if not todo.any():
             break
+        con = contrast() if con is None else con
         ok, where, sig = search_missing(con, p[todo], fit.tolerance(nodes[todo]), dots, radius, fit.pitch)
         out.append((nodes[todo], ok, where, sig))
         done |= {tuple(n) for n in nodes[todo]}
