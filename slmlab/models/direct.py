@@ -238,6 +238,15 @@ def _theta(s_e2, s_u2, n_t) -> np.ndarray:
     return theta
 
 
+def _robust_weights(r: np.ndarray, wts: np.ndarray, it: int) -> np.ndarray:
+    """:func:`_solve`'s row weights for iteration ``it`` from the rows' normalised residuals ``r``: Huber at 3
+    robust sigmas (of the rows weighted now, ``wts``) for the first three, then rejection beyond 10."""
+    scale = 1.4826 * np.median(r[wts > 0]) + 1e-12
+    if it < 3:
+        return np.minimum(1.0, 3.0 * scale / np.maximum(r, 1e-15))      # Huber
+    return (r < 10.0 * scale).astype(float)                             # reject beyond 10 robust sigmas
+
+
 def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, variance=None, clusters=None,
            precision=None):
     """Generalised least squares with per-group offsets (centred out) and a random effect per position.
@@ -291,12 +300,7 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             live = n_t > 0.5
             s_u2 = np.maximum(np.mean(rm[live] ** 2, 0) - s_e2 * np.mean(1 / n_t[live]), 0.0)
             theta = _theta(s_e2, s_u2, n_t)
-        r = np.linalg.norm(within * np.sqrt(hw / s_e2), axis=1)
-        scale = 1.4826 * np.median(r[wts > 0]) + 1e-12
-        if it < 3:
-            new = np.minimum(1.0, 3.0 * scale / np.maximum(r, 1e-15))      # Huber
-        else:
-            new = (r < 10.0 * scale).astype(float)                         # reject beyond 10 robust sigmas
+        new = _robust_weights(np.linalg.norm(within * np.sqrt(hw / s_e2), axis=1), wts, it)
         if it >= 4 and np.allclose(new, wts, atol=1e-4):
             break
         if variance is not None and np.array_equal(new, wts) and (it >= 3 or (new == 1.0).all()):
