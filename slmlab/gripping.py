@@ -90,12 +90,19 @@ class Scene:
 
 
 # ------------------------------------------------------------------------------------------ rendering
-def _polygon_layer(microscope, side, outline_mm, size):
-    """Anti-aliased coverage [0, 1] of a planar polygon given by 3D vertices, through the view's projection."""
+def _polygon_layer(microscope, side, outline_mm, size, margin_px: int = 0):
+    """Anti-aliased coverage [0, 1] of a planar polygon given by 3D vertices, through the view's projection, on
+    the polygon's bounding box grown by ``margin_px`` (clipped to the image of ``size``): the layer and the
+    ``(row, col)`` slices of the image it covers (empty slices if the polygon is outside the image)."""
     w = microscope.project_view(outline_mm, side)
-    layer = np.zeros(size[::-1], np.uint8)
-    cv2.fillPoly(layer, [np.round(w * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
-    return layer.astype(np.float32) / 255.0
+    x0, y0 = np.floor(w.min(axis=0)).astype(int) - margin_px - 2
+    x1, y1 = np.ceil(w.max(axis=0)).astype(int) + margin_px + 3
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, size[0]), min(y1, size[1])
+    box = (slice(y0, max(y1, y0)), slice(x0, max(x1, x0)))
+    layer = np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), np.uint8)
+    if layer.size:   # the same pixels as drawn on the whole image: the box moves the vertices by whole pixels
+        cv2.fillPoly(layer, [np.round((w - [x0, y0]) * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
+    return layer.astype(np.float32) / 255.0, box
 
 
 def _rect(centre, direction, length, width, n=24):
@@ -149,20 +156,27 @@ def render_scene(microscope: Microscope, scene: Scene, tip_mm, side: str, rng: n
         if part == "wire":
             for k in range(3):
                 outline = _rect(hub, scene.wire_direction(k), scene.wire_length_mm, scene.wire_diameter_mm)
-                refl = _composite(refl, _polygon_layer(microscope, side, outline, size), LEVELS["wire"], hub[2], microscope)
+                _composite(refl, microscope, side, outline, size, LEVELS["wire"], hub[2])
             continue
         outline, z = shapes[part]
-        refl = _composite(refl, _polygon_layer(microscope, side, outline, size), LEVELS[part], z, microscope)
+        _composite(refl, microscope, side, outline, size, LEVELS[part], z)
     if not noise:
         return np.clip(np.rint(refl * im.background_dn), 0, 255).astype(np.uint8)
     return expose(refl, im, rng)
 
 
-def _composite(refl, coverage, level, z_mm, microscope):
+def _composite(refl, microscope, side, outline_mm, size, level, z_mm) -> None:
+    """Lay a part of reflectance ``level`` (its outline at depth ``z_mm``) over ``refl`` (in place), blurred by
+    its defocus: a Gaussian standing in for pillbox ⊗ diffraction, on the part's box grown by the kernel's
+    reach (the layer is zero beyond it, so the blur there is the blur over the whole image)."""
     radius, sigma = microscope.imaging.blur_px(z_mm, microscope.optics.pixel_mm)
-    s = float(np.hypot(sigma, float(radius) / 2))  # a Gaussian standing in for pillbox ⊗ diffraction
+    s = float(np.hypot(sigma, float(radius) / 2))
+    reach = int(np.ceil(4 * s)) + 1 if s > 0.3 else 0           # OpenCV's kernel for float images: ±4σ
+    coverage, box = _polygon_layer(microscope, side, outline_mm, size, reach)
+    if coverage.size == 0:
+        return
     cov = cv2.GaussianBlur(coverage, (0, 0), s) if s > 0.3 else coverage
-    return refl * (1 - cov) + level * cov
+    refl[box] = refl[box] * (1 - cov) + level * cov
 
 
 # ------------------------------------------------------------------------------------------ locating
@@ -201,8 +215,8 @@ def build_gripper_model(microscope: Microscope, scene: Scene, reference_tip_mm, 
 def wire_mask(shape, line, half_width_px: float = 30.0) -> np.ndarray:
     """8-bit mask, 0 within ``half_width_px`` of a line ``(point, unit direction)`` [px], 255 elsewhere."""
     (mu, d) = line
-    ys, xs = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32)
-    dist = np.abs((xs - mu[0]) * d[1] - (ys - mu[1]) * d[0])
+    ys, xs = np.arange(shape[0], dtype=np.float32)[:, None], np.arange(shape[1], dtype=np.float32)[None, :]
+    dist = np.abs((xs - mu[0]) * d[1] - (ys - mu[1]) * d[0])          # broadcast: no coordinate images
     return np.where(dist > half_width_px, 255, 0).astype(np.uint8)
 
 
