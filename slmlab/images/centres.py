@@ -420,11 +420,15 @@ def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobi
         return value, None
     g = a * np.exp(-0.5 * t * t) / (np.sqrt(2 * np.pi) * w)                           # −dI/dq
     gq = g / q
-    cols = [gq * (v1 * s11 + v2 * s12), gq * (v1 * s12 + v2 * s22), -gq * v1 * ux, -gq * (v1 * uy + v2 * ux),
-            -gq * v2 * uy, -g * t]
     jac = np.empty((len(value), FIT_PARAMETERS, value.shape[1]))                  # parameters before pixels
-    for k, col in enumerate(cols + list(surface) + [dot * s for s in surface[:3]]):
-        jac[:, k] = col
+    np.multiply(gq, v1 * s11 + v2 * s12, out=jac[:, 0])                             # written in place
+    np.multiply(gq, v1 * s12 + v2 * s22, out=jac[:, 1])
+    np.multiply(-gq * v1, ux, out=jac[:, 2])
+    np.multiply(-gq, v1 * uy + v2 * ux, out=jac[:, 3])
+    np.multiply(-gq * v2, uy, out=jac[:, 4])
+    np.multiply(-g, t, out=jac[:, 5])
+    jac[:, FIT_NONLINEAR:FIT_NONLINEAR + 6] = surface
+    np.multiply(dot[:, None, :], surface[None, :3], out=jac[:, FIT_NONLINEAR + 6:])
     return value, jac
 
 
