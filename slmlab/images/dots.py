@@ -396,6 +396,8 @@ def sweep(con: Contrast, *, levels: int = LEVELS) -> Candidates:
         next_id += int(new.sum())
         recs.append(np.column_stack([cur.ids, np.full(len(cur.ids), k), cur.xy, cur.st, _own_centroid(cur)]))
         prev = cur
+        if len(cur.xy) == 0:   # the levels nest: nothing above a level that holds no blob
+            break
     rec = np.vstack(recs) if recs else np.empty((0, 10))
     return _summarise(rec, ts, con)
 
@@ -509,33 +511,34 @@ def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _neighbours(img: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The eight neighbours ``(n, 8)`` of pixels ``ys, xs`` (as float) and which of them are inside the image."""
-    y, x = ys[:, None] + _NEIGHBOURS[:, 0], xs[:, None] + _NEIGHBOURS[:, 1]
+    """The eight neighbours ``(8, n)`` of pixels ``ys, xs`` (as float) and which of them are inside the image
+    (neighbours first: the reductions over them then run along the pixels, which is several times faster)."""
+    y, x = ys[None, :] + _NEIGHBOURS[:, :1], xs[None, :] + _NEIGHBOURS[:, 1:]
     h, w = img.shape
     inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
     return img[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)].astype(np.float64), inside
 
 
 def _stand_out(v: np.ndarray, nb: np.ndarray, inside: np.ndarray, sigma: float) -> np.ndarray:
-    """Which pixels of values ``v`` ``(n,)`` exceed all their neighbours ``nb`` ``(n, 8)`` (those ``inside`` the
+    """Which pixels of values ``v`` ``(n,)`` exceed all their neighbours ``nb`` ``(8, n)`` (those ``inside`` the
     image) by more than 8 noise σ and by more than the neighbours' own range, or fall below them so."""
-    hi, lo = np.where(inside, nb, -np.inf).max(axis=1), np.where(inside, nb, np.inf).min(axis=1)
+    hi, lo = np.where(inside, nb, -np.inf).max(axis=0), np.where(inside, nb, np.inf).min(axis=0)
     up, down, span = v - hi, lo - v, hi - lo
     return ((up > 8 * sigma) & (up > span)) | ((down > 8 * sigma) & (down > span))
 
 
 def _hot_pairs(v: np.ndarray, nb: np.ndarray, inside: np.ndarray, sign: np.ndarray, sigma: float) -> np.ndarray:
     """Which pixels of values ``v`` (more than 8 σ off their 3 × 3 median, on the side ``sign``: +1 above, −1
-    below) are of adjacent hot (dead) pairs: they exceed (fall below) their neighbours ``nb`` but the two along
-    one direction by more than 8 σ and by more than those neighbours' range."""
+    below) are of adjacent hot (dead) pairs: they exceed (fall below) their neighbours ``nb`` ``(8, n)`` but the
+    two along one direction by more than 8 σ and by more than those neighbours' range."""
     hit = np.zeros(len(v), bool)
-    signed = nb * sign[:, None]
+    signed = nb * sign[None, :]
     for pair in _ALONG:
-        rest = np.delete(signed, pair, axis=1)
-        ok = np.delete(inside, pair, axis=1)
-        top, bottom = np.where(ok, rest, -np.inf).max(axis=1), np.where(ok, rest, np.inf).min(axis=1)
+        rest = np.delete(signed, pair, axis=0)
+        ok = np.delete(inside, pair, axis=0)
+        top, bottom = np.where(ok, rest, -np.inf).max(axis=0), np.where(ok, rest, np.inf).min(axis=0)
         up = v * sign - top
-        hit |= (up > 8 * sigma) & (up > top - bottom) & ok.all(axis=1)
+        hit |= (up > 8 * sigma) & (up > top - bottom) & ok.all(axis=0)
     return hit
 
 

@@ -480,10 +480,10 @@ class PlateLattice:
         on = self.predict(self.i1, self.i2)
         k = int(np.argmin(np.hypot(*(on - p).T)))
         x = np.array([self.i1[k], self.i2[k]], float)
-        for _ in range(4):
-            f = self.predict(x[0], x[1])
-            h = 1e-3
-            jac = np.column_stack([(self.predict(x[0] + h, x[1]) - f) / h, (self.predict(x[0], x[1] + h) - f) / h])
+        h = 1e-3
+        for _ in range(4):   # the point and its two forward steps in one prediction
+            f, fa, fb = self.predict(x[0] + np.array([0.0, h, 0.0]), x[1] + np.array([0.0, 0.0, h]))
+            jac = np.column_stack([(fa - f) / h, (fb - f) / h])
             x = x + np.linalg.solve(jac, p - f)
         return float(x[0]), float(x[1])
 
