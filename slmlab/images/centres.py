@@ -90,14 +90,18 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    column, chi, rho = (None,) * 3
-    if columns:
-        column, chi, rho = _columns(p - _plane(coef, ox[None], oy[None]), (d > ring_in) & (d <= half), oy)
+    column, chi, rho, background = (None,) * 4
+    if columns:   # the columns are measured on the whole patch
+        background = _plane(coef, ox[None], oy[None])
+        column, chi, rho = _columns(p - background, (d > ring_in) & (d <= half), oy)
         column[(chi <= STREAKINESS) | (rho <= COHERENCE)] = 0.0
     if crop is not None and crop < half:
         sl = slice(half - crop, half + crop + 1)
-        p, ox, oy, column = p[:, sl, sl], ox[sl, sl], oy[sl, sl], None if column is None else column[:, sl]
-    background = _plane(coef, ox[None], oy[None])
+        p, ox, oy = p[:, sl, sl], ox[sl, sl], oy[sl, sl]
+        if columns:
+            background, column = background[:, sl, sl], column[:, sl]
+    if background is None:
+        background = _plane(coef, ox[None], oy[None])
     if column is not None:
         background = background + column[:, None, :]
     return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi, rho)
@@ -322,11 +326,13 @@ def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: boo
 
 
 def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None,
-                 columns: bool = False):
+                 columns: bool = False, beyond: int | None = None):
     """Flat-fielded contrast patches (:func:`flatten`, ``columns`` too) on a ring just outside the dots'
-    reach, measured by :func:`dot_reach` unless given [px]; and the reach."""
+    reach, measured by :func:`dot_reach` unless given [px]; and the reach. ``beyond``: the contrast only
+    within the reach plus this many pixels (the whole patch if ``None``)."""
     reach = dot_reach(img, centres, radii, dark) if reach is None else reach
-    return flatten(img, centres, reach + 1, dark, columns), reach
+    crop = None if beyond is None else int(np.ceil(reach)) + beyond
+    return flatten(img, centres, reach + 1, dark, columns, crop), reach
 
 
 
@@ -349,9 +355,7 @@ def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dar
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    reach = dot_reach(img, c, radii, dark) if reach is None else reach
-    # crossings only within the reach (+ 2 px)
-    flat = flatten(img, c, reach + 1, dark, columns, crop=int(np.ceil(reach)) + 2)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, beyond=2)   # crossings within the reach + 2 px
     r = float(np.median(radii))
     core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
     level = 0.5 * np.median(flat.contrast[:, core], axis=1)

@@ -493,21 +493,8 @@ def _off_median(img: np.ndarray, med: np.ndarray, sigma: float) -> tuple[np.ndar
     (a pixel above all eight is above its median, one of them)."""
     off = cv2.compare(cv2.absdiff(img, med), 8 * sigma, cv2.CMP_GT)
     off[[0, -1], :], off[:, [0, -1]] = 255, 255
-    return _nonzero(off)
-
-
-def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns of the non-zero pixels of a sparse ``uint8`` mask, in row-major order (as
-    ``cv2.findNonZero``): the mask read eight bytes at a time, only the words that hold one looked into
-    (twice as fast as cv2.findNonZero on a sparse 2048² mask: 1.2 against 2.4 ms)."""
-    flat = np.ascontiguousarray(mask).ravel()
-    pad = (-len(flat)) % 8
-    if pad:
-        flat = np.concatenate([flat, np.zeros(pad, np.uint8)])
-    words = np.flatnonzero(flat.view(np.uint64))
-    idx = (words[:, None] * 8 + np.arange(8)).ravel()
-    idx = idx[flat[idx] != 0]
-    return idx // mask.shape[1], idx % mask.shape[1]
+    p = cv2.findNonZero(off)
+    return p[:, 0, 1].astype(int), p[:, 0, 0].astype(int)
 
 
 def _neighbours(img: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
