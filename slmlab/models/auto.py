@@ -326,6 +326,7 @@ def _held_out(cal: CalibrationSet, cands, fitted: dict, options: dict, skipped: 
     sub = _thinned(cal)
     pts, _, mode = world_positions(sub)
     folds = row_folds(pts, mode, diagonal=True)
+    by_position = _dots_within_positions(pts, mode)
     cv = {}
     for label, name, _ in cands:
         if label not in fitted:
@@ -335,10 +336,19 @@ def _held_out(cal: CalibrationSet, cands, fitted: dict, options: dict, skipped: 
             continue
         try:
             cv[label] = [float(v) for v in held_out_errors(sub, name, {**options[label], **fitted[label].fixed_options()},
-                                                           folds)]
+                                                           folds, by_position=by_position)]
         except SlmlabError as exc:
             skipped[label] = f"not cross-validated: {exc.reason}"
     return cv
+
+
+def _dots_within_positions(pts, mode: str) -> bool:
+    """Whether the folds hold out dots within every one of several positions (the dots' world positions known,
+    fewer positions than held-out planes need): their errors are then measured net of each position's own
+    offset (:func:`slmlab.models.folds.per_position_offsets`), the stage's, which a model that learns it as
+    optics from the position's other dots would otherwise be rewarded for."""
+    n_pos = pts.groupby("sequence")["position"].nunique()
+    return mode != "moves" and n_pos.max() >= 2 and n_pos.min() < PLANES_FOR_PLANE_FOLDS
 
 
 def _pinhole_misfit(fitted: dict) -> str:
