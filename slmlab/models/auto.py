@@ -18,7 +18,7 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    on stage moves the same polynomial of the four image coordinates estimated by the direct model's solver,
    the stage's error at each position a random effect: ordinary least squares lets a stage's positioning
    noise into the polynomial's shape, and on the ``paper`` preset costs 15 % in Y over the volume).
-   Where the dots' world positions are known and the set has fewer depths than held-out planes need
+   Where the dots' world positions are known and the set has fewer stage positions than held-out planes need
    (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`), also the pinhole pair (OpenCV, one 3D view of the
    dots: :mod:`slmlab.models.pinhole`; settings :data:`PINHOLE`), the one candidate whose bend in depth is set
    by physics. Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models
@@ -67,7 +67,8 @@ from ..errors import SlmlabError
 from ..io import CalibrationSet
 from .base import Model, get_model_class, register
 from .direct import check_options
-from .folds import PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, held_out_errors, row_folds, thin_dots
+from .folds import (PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, held_out_errors, planes_held_out,
+                    row_folds, thin_dots)
 from .frames import world_positions
 from .reference import DEGREES as POLYNOMIAL_DEGREES
 from .stage_errors import corrected_for_stage
@@ -96,7 +97,7 @@ BETWEEN_DEPTHS = 1.5
 COMPARISON_ROWS = 4000
 
 
-def candidate_list(candidates, world: np.ndarray, mode: str) -> tuple[list[tuple[str, str, dict]], dict]:
+def candidate_list(candidates, pts, mode: str) -> tuple[list[tuple[str, str, dict]], dict]:
     """``[(label, model name, fixed options)]`` of the candidates that apply to the set, in order of
     preference, and ``{label: why not}`` of those that do not. ``"polynomial"`` expands to
     ``polynomial-1`` … ``polynomial-4``; ``"polynomial-3"`` names one degree."""
@@ -112,12 +113,11 @@ def candidate_list(candidates, world: np.ndarray, mode: str) -> tuple[list[tuple
                                                   else ("polynomial", {"degree": d}))))
             continue
         get_model_class(c)
-        depths = len(np.unique(np.round(world[:, 2], 6)))
         if c in ("soloff", "pinhole") and mode == "moves":
             skipped[c] = "needs the dots' world positions (a Z stack or a known target)"
-        elif c == "pinhole" and depths >= PLANES_FOR_PLANE_FOLDS:
-            skipped[c] = (f"not needed: {depths} depths, whose held-out interior planes measure how each candidate "
-                          "bends between depths")
+        elif c == "pinhole" and planes_held_out(pts, mode):
+            skipped[c] = (f"not needed: {pts.groupby('sequence')['position'].nunique().min()} positions, whose held-out interior planes measure "
+                          "how each candidate bends between depths")
         else:
             out.append((c, c, dict(PINHOLE) if c == "pinhole" else {}))
     return out, skipped
@@ -198,7 +198,7 @@ class AutoModel(Model):
         if stage["applied"]:  # every candidate calibrates on the corrected positions, a known target
             given["mode"] = "target"
             pts, world, _ = world_positions(cal, "target")
-        cands, skipped = candidate_list([str(c) for c in np.atleast_1d(candidates)], world, mode)
+        cands, skipped = candidate_list([str(c) for c in np.atleast_1d(candidates)], pts, mode)
         if not cands:
             raise SlmlabError(f"none of the candidates {', '.join(map(str, np.atleast_1d(candidates)))} can "
                               "calibrate this set", cal.path)
@@ -347,8 +347,7 @@ def _dots_within_positions(pts, mode: str) -> bool:
     fewer positions than held-out planes need): their errors are then measured net of each position's own
     offset (:func:`slmlab.models.folds.per_position_offsets`), the stage's, which a model that learns it as
     optics from the position's other dots would otherwise be rewarded for."""
-    n_pos = pts.groupby("sequence")["position"].nunique()
-    return mode != "moves" and n_pos.max() >= 2 and n_pos.min() < PLANES_FOR_PLANE_FOLDS
+    return not planes_held_out(pts, mode) and mode != "moves" and pts.groupby("sequence")["position"].nunique().max() >= 2
 
 
 def _pinhole_misfit(fitted: dict) -> str:
@@ -379,7 +378,7 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     depths = len(np.unique(np.round(world[:, 2], 6)))
     pinned = [c for c in ("direct", "soloff") if c in cv]
     dropped: set[tuple[str, int]] = set()
-    if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not (pinned or "pinhole" in cv):
+    if planes_held_out(pts, mode) or mode == "moves" or depths < 2 or not (pinned or "pinhole" in cv):
         return dropped
     w = between_depths(pts, world)
     if not len(w):

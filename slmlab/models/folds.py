@@ -17,7 +17,7 @@ from ..linefit import point_keys
 from .base import get_model_class
 from .frames import world_positions
 
-__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
+__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds", "planes_held_out",
            "fold_description", "held_out_errors", "per_position_offsets", "between_depths", "thin_dots"]
 
 #: sequences with at most this many positions are cross-validated one position at a time
@@ -65,7 +65,7 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
     n_pos = pts.groupby("sequence")["position"].nunique().min()
     if mode == "moves" and n_pos >= 2:
         out = [(~m, m) for m in position_folds(pts)]
-    elif mode == "moves" or n_pos < PLANES_FOR_PLANE_FOLDS:
+    elif not planes_held_out(pts, mode):
         out = [(key != r, key == r) for r in range(DOT_FOLDS)]
     else:
         held = position_folds(pts)
@@ -78,13 +78,21 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
     return [(tr, te) for tr, te in out if tr.any() and te.any()]
 
 
+def planes_held_out(pts, mode: str) -> bool:
+    """Whether :func:`row_folds` holds out whole interior planes (crossed with dots): the dots' world positions
+    known and at least :data:`PLANES_FOR_PLANE_FOLDS` stage positions in every sequence. Positions, not depths:
+    a two-level plate at three positions has six depths, but a fold without one position loses two of them."""
+    n_pos = pts.groupby("sequence")["position"].nunique().min()
+    return mode != "moves" and n_pos >= PLANES_FOR_PLANE_FOLDS
+
+
 def fold_description(pts, mode: str, *, diagonal: bool = False) -> str:
     """One line for the model file: how :func:`row_folds` held rows out of this set."""
     n = len(row_folds(pts, mode, diagonal=diagonal))
     n_pos = pts.groupby("sequence")["position"].nunique().min()
     if mode == "moves" and n_pos >= 2:
         return f"{n} folds of interior stage positions (each dot's offset from the training positions)"
-    if mode == "moves" or n_pos < PLANES_FOR_PLANE_FOLDS:
+    if not planes_held_out(pts, mode):
         return f"{n} folds of held-out dots within every position ({n_pos} position(s): too few to hold out)"
     return f"{n} folds of interior planes crossed with every fifth dot"
 
