@@ -51,4 +51,28 @@ def test_behind_a_window_the_pinhole_is_no_reference_and_is_not_chosen():
 def test_with_enough_planes_the_pinhole_is_not_a_candidate():
     sel = calibrate(simulate_design(rig_by_name("stereo-dic"), "zstack-5", seed=1)).calibration["selection"]
     assert "pinhole" not in sel["held_out_rms_mm"]
-    assert sel["skipped"]["pinhole"].startswith("not needed: 5 depths")
+    assert sel["skipped"]["pinhole"].startswith("not needed: 5 positions")
+
+
+@pytest.mark.parametrize("design", ["two-level-3z", "stepped-target"])
+def test_many_depths_at_few_positions_keep_the_pinhole(design):
+    """Six depths at three positions (or a stepped target's depths in one pose) hold out no plane: only dots
+    within positions, so the pinhole pair is a candidate and the judge between the depths."""
+    sel = calibrate(simulate_design(rig_by_name("stereo-dic"), design, seed=1)).calibration["selection"]
+    assert "pinhole" in sel["held_out_rms_mm"], sel["skipped"]
+    assert sel["held_out_by"].startswith("5 folds of held-out dots within every position")
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_position_s_stage_error_is_not_a_candidate_s_merit(seed):
+    """A two-level plate at three positions of the Greenough rig (stage noise several times the floor): held-out
+    dots within a position share its stage error, which a polynomial learns from the others as optics and the
+    direct model keeps out as a random effect. Measured net of each position's offset, the default is within
+    1.12x its best candidate in X and Y (held against the truth; before: 1.69x in X on seed 1, a 4th-degree
+    polynomial). Not 1.05x: on seed 2 the direct model is 4 % better than the cubic in Y on held-out dots, not
+    the 5 % a candidate needs to beat a plain polynomial, and 1.11x better in the volume."""
+    t = _table("greenough", "two-level-3z", seed)
+    xy = ["X_um", "Y_um"]
+    cands = t.drop(index=["floor", "frame floor", "auto"])[xy].min()
+    assert (t.loc["auto", xy] <= 1.12 * cands).all(), t[xy]
+    assert (t.loc["auto", xy] <= 1.2 * t.loc["floor", xy]).all(), t[xy]
