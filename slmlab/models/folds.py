@@ -153,13 +153,14 @@ def per_position_offsets(e: np.ndarray, position: np.ndarray) -> np.ndarray:
     return out
 
 
-def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarray:
+def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
     """Image coordinates ``(m, 4)`` [px] between each dot and its nearest neighbour across the target (in world
     ``x, y``) at the next depth up (the same dot on the next plane of a Z stack, the neighbouring dot of the
     other level of a two-level plate): halfway, and for the outermost pair of depths also ``beyond`` of the way
     past each end (a calibration is used a little past its last plane). Not images of known points (the image of a midpoint is not the midpoint
     of the images, to second order), but the same inputs for every model: where two models that both fit the
-    calibrated depths disagree there, one of them bends between the depths in a way nothing measured."""
+    calibrated depths disagree there, one of them bends between the depths in a way nothing measured. Also
+    returns each point's group ``(m,)``: its pair of depths and its place between them (halfway, beyond)."""
     w = pts[IMAGE_COLUMNS].to_numpy(float)
     z = np.round(world[:, 2], 6)
     levels = np.unique(z)
@@ -171,7 +172,9 @@ def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarra
         wa, wb = w[a][near], w[b][j[near]]
         ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(levels) - 2 else [])
         out += [wa + t * (wb - wa) for t in ts]
-    return np.vstack(out) if out else np.empty((0, 4))
+    if not out:
+        return np.empty((0, 4)), np.empty(0, int)
+    return np.vstack(out), np.repeat(np.arange(len(out)), [len(o) for o in out])
 
 
 def thin_dots(pts, max_rows: int) -> np.ndarray:

@@ -20,9 +20,11 @@ corrected, and with three only their curvature. Offsets not clearly above their 
 
 On the Greenough rig of notebook 11 (0.3 µm per move against a 0.07 µm floor) this puts the default within
 1.03× of the floor in the commanded frame in X and Y on every Z stack of three planes or more (before: up to
-1.55×), and a two-level plate at three positions within 1.1× (before: 1.52×); two positions leave nothing
-outside the frame to correct. Where the pinhole pair does not describe the rig (refraction through a window)
-or on stage moves, nothing changes.
+1.55×), and a two-level plate at three positions below it (0.65× and 0.84× in X and Y, the direct model;
+before: 1.52×); two positions leave nothing outside the frame to correct, but the check that the pinhole pair
+describes the rig is reported (``pinhole_fits``): the default lets it judge how candidates bend between depths.
+Where the pinhole pair does not describe the rig (refraction through a window) or on stage moves, nothing
+changes.
 """
 
 from __future__ import annotations
@@ -59,7 +61,9 @@ CHECK_ROWS = 400
 def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -> tuple[CalibrationSet, dict]:
     """``(set, report)``: ``cal`` with its commanded world positions corrected by each stage position's
     offset (module docstring), as a known target, or ``cal`` itself where that does not apply; ``report``:
-    ``applied`` (bool), ``why`` (one line) and, where measured, ``offsets_um`` per position
+    ``applied`` (bool), ``why`` (one line), ``pinhole_fits`` where it was tested (the pinhole pair, the offsets
+    taken out, within :data:`FITS` of the Soloff polynomials' scatter: it describes the rig's optics) and,
+    where measured, ``offsets_um`` per position
     ``{"sequence:position": [x, y, z]}`` and their ``rms_um`` and ``standard_error_um`` per coordinate."""
     pts, world, mode = world_positions(cal, mode)
     keys = _position_keys(pts)
@@ -69,7 +73,7 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
         check = CalibrationSet(pts[thin_dots(pts, CHECK_ROWS)].reset_index(drop=True), cal.meta, path=cal.path)
         if why := _does_not_fit(check, get_model_class("pinhole").fit(check, **pinhole_options), MISFIT,
                                 _depth_degree(world)):
-            return cal, {"applied": False, "why": why}  # far off: refraction through a window, say
+            return cal, {"applied": False, "why": why, "pinhole_fits": False}  # far off: a window, say
         sub = CalibrationSet(pts[thin_dots(pts, ROWS)].reset_index(drop=True), cal.meta, path=cal.path)
         total, se = _offsets(sub, mode, get_model_class("pinhole").fit(sub, **pinhole_options))
         for _ in range(ITERATIONS - 1):  # refitted on the corrected positions
@@ -79,11 +83,12 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
             total = total + more
         why = _does_not_fit(moved, pinhole, FITS)  # the offsets taken out, close to the polynomials
     except SlmlabError as exc:
-        return cal, {"applied": False, "why": f"the positions' offsets could not be measured: {exc.reason}"}
+        return cal, {"applied": False, "why": f"the positions' offsets could not be measured: {exc.reason}",
+                     "pinhole_fits": False}
     if why:
-        return cal, {"applied": False, "why": why}
+        return cal, {"applied": False, "why": why, "pinhole_fits": False}
     rms = np.sqrt(np.mean(total.to_numpy() ** 2, axis=0))
-    report = {"offsets_um": {k: [round(1e3 * v, 4) for v in row] for k, row in total.iterrows()},
+    report = {"pinhole_fits": True, "offsets_um": {k: [round(1e3 * v, 4) for v in row] for k, row in total.iterrows()},
               "rms_um": [round(1e3 * v, 4) for v in rms], "standard_error_um": [round(1e3 * v, 4) for v in se]}
     if not np.any(rms > SIGNIFICANCE * se):
         return cal, {"applied": False, "why": "no offset clearly above its noise", **report}
