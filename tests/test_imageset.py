@@ -13,7 +13,7 @@ import pytest
 
 import slmlab
 from slmlab.datasets import converters
-from slmlab.studies import workspace
+from slmlab.studies import realrigs, workspace
 from slmlab.images.extract import extract_image
 from slmlab.images.dots import read_image
 from slmlab.images.imageset import TRACKED, extract_set
@@ -320,3 +320,24 @@ def test_a_plate_cut_by_a_glare_is_numbered_from_the_one_edge_the_image_shows_em
     assert dots.frame == "plate", dots.note
     got = dots.table.merge(truth, on=["row", "col"], suffixes=("", "_true"))
     assert len(got) == 42 and np.abs(got["w1"] - got["w1_true"]).max() < 0.5
+
+
+@pytest.mark.slow  # six calibrations with every candidate on the full extraction
+def test_case_e_calibrated_on_its_extraction_the_default_is_no_worse_than_the_quadratic(case_e, tmp_path):
+    """Calibrated on the extracted planes 1, 3, 5, 7 (a two-level plate: eight depths at four positions, a stage
+    true to its commands), checked on the extracted planes 2, 4, 6: the default no worse than the plain
+    quadratic in any coordinate, and within 15 % of the better of the Soloff and direct models (Z: the
+    quadratic held out 2 % worse than the Soloff model, not the 5 % a candidate needs to beat a plain
+    polynomial, and is 1.13x it here). A default that forgave each position's offset in the held-out errors,
+    or let the pinhole pair judge between eight depths, took the pinhole in Z: 1.2x the quadratic."""
+    d, pts, _ = case_e
+    s = tmp_path / "set"
+    shutil.copytree(d, s)
+    slmlab.write_csv(s / "points.csv", pts)
+    full = slmlab.read_set(s)
+    models = {"quadratic": {"model": "quadratic"}, "default": {}, "direct": {"model": "direct"},
+              "soloff": {"model": "soloff"}}
+    t = realrigs.compare_on_planes(full, models, [1, 3, 5, 7], check=full, check_on=[2, 4, 6]).set_index("model")
+    xyz = ["X_um", "Y_um", "Z_um"]
+    assert (t.loc["default", xyz] <= t.loc["quadratic", xyz] * (1 + 1e-9)).all(), t[xyz]
+    assert (t.loc["default", xyz] <= 1.15 * t.loc[["direct", "soloff"], xyz].min()).all(), t[xyz]
