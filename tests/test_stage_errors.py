@@ -9,7 +9,8 @@ import pytest
 from slmlab.models import calibrate
 from slmlab.models.auto import PINHOLE
 from slmlab.models.frames import world_positions
-from slmlab.models.stage_errors import _position_keys, corrected_for_stage
+from slmlab.models.folds import position_keys
+from slmlab.models.stage_errors import corrected_for_stage
 from slmlab.studies.zoo import compare_models
 from slmlab.virtual.designs import simulate_design
 from slmlab.virtual.rigs import rig_by_name
@@ -22,7 +23,7 @@ def _true_offsets(cal) -> pd.DataFrame:
     (the frame, which stays)."""
     pts, world, _ = world_positions(cal)
     truth = cal.truth.loc[pts.index, ["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
-    keys = _position_keys(pts)
+    keys = position_keys(pts)
     e = pd.DataFrame(1e3 * (truth - world)).groupby(keys).mean()
     stage = pts[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].groupby(keys).first().loc[e.index].to_numpy(float)
     design = np.column_stack([stage, np.ones(len(stage))])

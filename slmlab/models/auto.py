@@ -41,15 +41,16 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    two in quadrature. In Z the pinhole's own error between the depths is as large as the differences it would
    judge (depth is the stereo angle's weak direction), and a candidate is only dropped where it differs from the
    pinhole by more than :data:`BETWEEN_DEPTHS` times the larger held-out error: judged in quadrature, the PIV
-   Challenge's case E took the pinhole's Z at 1.08x the quadratic on the other planes. On a stereo-DIC pair calibrated on two planes, a model linear in depth puts the midplane 30 µm
-   off in Z against a 4 µm floor; the pinhole pair is within 1.2× of the floor. On a two-level plate at two
+   Challenge's case E took the pinhole's Z at 1.08x the quadratic on the other planes. On a stereo-DIC pair
+   calibrated on two planes, a model linear in depth puts the midplane 30 µm off in Z against a 4 µm floor; the
+   pinhole pair is within 1.2× of the floor. On a two-level plate at two
    stage positions of the Greenough rig, a polynomial of degree 4 learns the stage's error between the two as
    optics (held-out 0.09 µm in X, the pinhole 0.15) and bends 0.29 µm from the pinhole between the depths; the
    Soloff model taken instead is at the floor in the commanded frame, where the polynomial was at 2× (notebook
-   11). Where the pinhole does not describe the rig (refraction through a
-   window, a lens a pinhole cannot describe), a plain polynomial is dropped where it differs from every
-   depth-pinned candidate (direct, soloff) by more than :data:`BETWEEN_DEPTHS` times their held-out errors: a
-   cubic through two planes can put the midplane far off while fitting both planes to the noise.
+   11). Where the pinhole does not describe the rig (refraction through a window, a lens a pinhole cannot
+   describe), a plain polynomial is dropped where it differs from every depth-pinned candidate (direct,
+   soloff) by more than :data:`BETWEEN_DEPTHS` times their held-out errors: a cubic through two planes can put
+   the midplane far off while fitting both planes to the noise.
    A known blind spot, where step 0 does not apply (stage moves, a rig the pinhole pair does not describe):
    held-out dots share their position's stage error (positioning noise, lead and straightness errors: the same
    for every dot of a position), and a held-out plane's own offset goes out with the fold's, so no fold sees
@@ -65,7 +66,8 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    of it; then the best of those (within :data:`TIE`, the earlier in :data:`CANDIDATES`).
 
 The choice and its evidence (every candidate's held-out RMS per coordinate, its difference from the pinhole
-between the depths where that judged, the folds, what was skipped and why) are in the model file under ``calibration.selection``, and ``evaluate`` prints them.
+between the depths where that judged, the folds, what was skipped and why) are in the model file under
+``calibration.selection``, and ``evaluate`` prints them.
 """
 
 from __future__ import annotations
@@ -116,8 +118,8 @@ def candidate_list(candidates, pts, world: np.ndarray, mode: str) -> tuple[list[
     out (as many stage positions), or the target's own depth interleaves the positions' (a two-level plate at
     three or four positions) and a candidate's fit through them all leaves it little room to bend between them.
     On the PIV Challenge's case E (a two-level plate at four positions, eight depths) the pinhole pair as a
-    judge there took Z, 1.35x worse than the Soloff model on the other planes of the extraction. ``"polynomial"`` expands to
-    ``polynomial-1`` … ``polynomial-4``; ``"polynomial-3"`` names one degree."""
+    judge there took Z, 1.35x worse than the Soloff model on the other planes of the extraction.
+    ``"polynomial"`` expands to ``polynomial-1`` … ``polynomial-4``; ``"polynomial-3"`` names one degree."""
     out, skipped = [], {}
     for c in candidates:
         name, _, deg = c.partition("-")
@@ -133,9 +135,10 @@ def candidate_list(candidates, pts, world: np.ndarray, mode: str) -> tuple[list[
         if c in ("soloff", "pinhole") and mode == "moves":
             skipped[c] = "needs the dots' world positions (a Z stack or a known target)"
         elif c == "pinhole" and (depths := len(np.unique(np.round(world[:, 2], 6)))) >= PLANES_FOR_PLANE_FOLDS:
-            skipped[c] = (f"not needed: {depths} depths, " + ("whose held-out interior planes measure how each candidate "
-                          "bends between them" if planes_held_out(pts, mode) else "too close for a candidate fitted "
-                          "through them all to bend far between them"))
+            skipped[c] = (f"not needed: {depths} depths, "
+                          + ("whose held-out interior planes measure how each candidate bends between them"
+                             if planes_held_out(pts, mode) else
+                             "too close for a candidate fitted through them all to bend far between them"))
         else:
             out.append((c, c, dict(PINHOLE) if c == "pinhole" else {}))
     return out, skipped
@@ -238,9 +241,11 @@ class AutoModel(Model):
                      "described": {c: m.describe() for c, m in fitted.items()},
                      "held_out_by": ("not needed: one candidate" if len(cv) < 2 else
                                      f"{fold_description(pts, mode, diagonal=True)}, on {len(_thinned(cal).points)} rows"),
-                     "rule": (f"per coordinate the plain polynomial with the smallest held-out RMS"
-                              + (" (in quadrature with its difference from the pinhole between the depths)" if gaps else "")
-                              + f", unless another candidate is lower by more than {MARGIN:.0%}; ties within {TIE:.0%}"),
+                     "rule": ("per coordinate the plain polynomial with the smallest held-out RMS"
+                              + (" (X, Y: in quadrature with its difference from the pinhole between the depths)"
+                                 if gaps else "")
+                              + f", unless another candidate is lower by more than {MARGIN:.0%}; "
+                                f"ties within {TIE:.0%}"),
                      "between_depths_mm": gaps, "skipped": skipped, "stage": stage}
         return cls(choice, models, fitted,
                    options={**primary.options, "candidates": [str(c) for c in np.atleast_1d(candidates)]},
@@ -374,7 +379,8 @@ def _dots_within_positions(pts, mode: str) -> bool:
     would otherwise be rewarded for. Where it found none, a position's offset in a model's held-out errors is
     the model's own: on the PIV Challenge's case E (four planes, a stage true to its commands) forgiving it
     took the direct model in Y, 1.4x worse on the other planes than the Soloff model taken otherwise."""
-    return not planes_held_out(pts, mode) and mode != "moves" and pts.groupby("sequence")["position"].nunique().max() >= 2
+    several = pts.groupby("sequence")["position"].nunique().max() >= 2
+    return mode != "moves" and several and not planes_held_out(pts, mode)
 
 
 def _pinhole_misfit(fitted: dict) -> str:
@@ -396,7 +402,8 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
                           ) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
     """``(judged, gaps)``: the error [mm] each candidate is chosen by, per coordinate, and (where the pinhole pair
     judges) each candidate's RMS difference [mm] from it between the calibrated depths
-    (:func:`slmlab.models.folds.between_depths`). Where held-out dots are all a set with few positions allows
+    (:func:`slmlab.models.folds.between_depths`). Where a set has fewer depths than
+    :data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS` and held-out dots are all it allows
     (:func:`slmlab.models.folds.row_folds`), nothing measured says how a candidate bends between the depths
     (module docstring, step 2). The pinhole pair judges it where it describes the rig: ``describes`` (the stage
     step found it within :data:`slmlab.models.stage_errors.FITS` of the Soloff polynomials' scatter, its
@@ -404,15 +411,14 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     candidate's. Perspective sets its bend, and a candidate's difference from it there is an error the user
     will see on top of its held-out one: in X and Y they add in quadrature; in Z, where the pinhole's own error
     between the depths is as large, a candidate is dropped only where it differs by more than
-    :data:`BETWEEN_DEPTHS` times the larger held-out error (the reason in ``skipped``). Otherwise a plain polynomial is dropped where
-    it disagrees with every depth-pinned candidate (direct, soloff) by more than :data:`BETWEEN_DEPTHS` times
-    the larger held-out error, with the reason in ``skipped``."""
+    :data:`BETWEEN_DEPTHS` times the larger held-out error. Otherwise a plain polynomial is dropped where it
+    disagrees with every depth-pinned candidate (direct, soloff) by as much (:func:`_drop_if_bent`)."""
     judged = {c: list(e) for c, e in cv.items()}
     depths = len(np.unique(np.round(world[:, 2], 6)))
     pinned = [c for c in ("direct", "soloff") if c in cv]
     if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not (pinned or "pinhole" in cv):
         return judged, {}
-    w, _ = between_depths(pts, world)
+    w = between_depths(pts, world)
     if not len(w):
         return judged, {}
     recon = {c: fitted[c].reconstruct(w) for c in cv}
@@ -426,17 +432,21 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
         gaps = {c: [0.0 if c == "pinhole" else gap(c, "pinhole", k) for k in range(3)] for c in cv}
         for c in cv:
             judged[c][:2] = [float(np.hypot(e, g)) for e, g in zip(cv[c][:2], gaps[c][:2])]
-            if gaps[c][2] > BETWEEN_DEPTHS * max(cv[c][2], cv["pinhole"][2]):  # Z: only a gross bend
-                judged[c][2] = float("inf")
-                skipped[f"{c} (Z)"] = (f"bends between the {depths} calibrated depths: {1e3 * gaps[c][2]:.3g} um from "
-                                       f"pinhole, held-out {1e3 * cv['pinhole'][2]:.3g} um")
+            if c != "pinhole":  # Z: only a gross bend
+                _drop_if_bent(judged, skipped, cv, c, 2, {"pinhole": gaps[c][2]}, depths)
         return judged, gaps
-    for k, axis in enumerate("XYZ"):
+    for k in range(3):
         for label in [c for c in cv if _is_polynomial(c)] if pinned else []:
-            gaps = {r: gap(label, r, k) for r in pinned}
-            if all(g > BETWEEN_DEPTHS * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
-                judged[label][k] = float("inf")
-                skipped[f"{label} ({axis})"] = (f"bends between the {depths} calibrated depths: "
-                                                + ", ".join(f"{1e3 * g:.3g} um from {r}" for r, g in gaps.items())
-                                                + f", held-out {1e3 * min(cv[r][k] for r in pinned):.3g} um")
+            _drop_if_bent(judged, skipped, cv, label, k, {r: gap(label, r, k) for r in pinned}, depths)
     return judged, {}
+
+
+def _drop_if_bent(judged: dict, skipped: dict, cv: dict, label: str, k: int, gaps: dict[str, float], depths: int):
+    """Drop ``label`` for coordinate ``k`` (``judged`` to infinity, the reason in ``skipped``) where it differs
+    between the depths from every reference in ``gaps`` (``{reference: RMS difference [mm]}``) by more than
+    :data:`BETWEEN_DEPTHS` times the larger of the two held-out errors."""
+    if all(g > BETWEEN_DEPTHS * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
+        judged[label][k] = float("inf")
+        skipped[f"{label} ({'XYZ'[k]})"] = (f"bends between the {depths} calibrated depths: "
+                                           + ", ".join(f"{1e3 * g:.3g} um from {r}" for r, g in gaps.items())
+                                           + f", held-out {1e3 * min(cv[r][k] for r in gaps):.3g} um")

@@ -10,6 +10,7 @@ model's degrees.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 from scipy.spatial import cKDTree
 
 from ..io import IMAGE_COLUMNS, CalibrationSet
@@ -17,8 +18,9 @@ from ..linefit import point_keys
 from .base import get_model_class
 from .frames import world_positions
 
-__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds", "planes_held_out",
-           "fold_description", "held_out_errors", "per_position_offsets", "between_depths", "thin_dots"]
+__all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
+           "planes_held_out", "fold_description", "position_keys", "held_out_errors", "per_position_offsets",
+           "between_depths", "thin_dots"]
 
 #: sequences with at most this many positions are cross-validated one position at a time
 LEAVE_ONE_OUT_MAX = 8
@@ -103,6 +105,11 @@ def dot_folds(pts) -> np.ndarray:
     return (pts["row"].to_numpy(np.int64) + 2 * pts["col"].to_numpy(np.int64)) % DOT_FOLDS
 
 
+def position_keys(pts) -> np.ndarray:
+    """Each row's stage position, ``"sequence:position"``: the rows that share one stage error."""
+    return (pts["sequence"].astype(str) + ":" + pts["position"].astype(str)).to_numpy()
+
+
 def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None, folds=None, *,
                     by_position: bool = False) -> np.ndarray:
     """Held-out RMS [mm] per coordinate of model ``name`` on ``cal`` (module docstring, step 2); ``folds``:
@@ -110,7 +117,7 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
     ``by_position`` of each held-out position's own (:func:`per_position_offsets`)."""
     pts, world, mode = world_positions(cal, (options or {}).get("mode", "auto"))
     folds = row_folds(pts, mode) if folds is None else folds
-    position = (pts["sequence"].astype(str) + ":" + pts["position"].astype(str)).to_numpy()
+    position = position_keys(pts)
     cls = get_model_class(name)
     errs = []
     for train_rows, held in folds:
@@ -145,22 +152,16 @@ def per_position_offsets(e: np.ndarray, position: np.ndarray) -> np.ndarray:
     optics (the direct model's stage errors, a random effect) penalised: on a two-level plate at three
     positions of the Greenough rig the direct model ranked last in X by that measure (0.155 µm against 0.113
     for the 4th-degree polynomial) and is first inside the volume (0.074 against 0.124, notebook 11)."""
-    _, g = np.unique(position, return_inverse=True)
-    g = g.ravel()
-    out = np.empty_like(e)
-    for k in range(g.max() + 1):
-        out[g == k] = np.median(e[g == k], axis=0)
-    return out
+    return pd.DataFrame(e).groupby(position).transform("median").to_numpy()
 
 
-def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarray:
     """Image coordinates ``(m, 4)`` [px] between each dot and its nearest neighbour across the target (in world
     ``x, y``) at the next depth up (the same dot on the next plane of a Z stack, the neighbouring dot of the
     other level of a two-level plate): halfway, and for the outermost pair of depths also ``beyond`` of the way
     past each end (a calibration is used a little past its last plane). Not images of known points (the image of a midpoint is not the midpoint
     of the images, to second order), but the same inputs for every model: where two models that both fit the
-    calibrated depths disagree there, one of them bends between the depths in a way nothing measured. Also
-    returns each point's group ``(m,)``: its pair of depths and its place between them (halfway, beyond)."""
+    calibrated depths disagree there, one of them bends between the depths in a way nothing measured."""
     w = pts[IMAGE_COLUMNS].to_numpy(float)
     z = np.round(world[:, 2], 6)
     levels = np.unique(z)
@@ -172,9 +173,7 @@ def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> tuple[np.
         wa, wb = w[a][near], w[b][j[near]]
         ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(levels) - 2 else [])
         out += [wa + t * (wb - wa) for t in ts]
-    if not out:
-        return np.empty((0, 4)), np.empty(0, int)
-    return np.vstack(out), np.repeat(np.arange(len(out)), [len(o) for o in out])
+    return np.vstack(out) if out else np.empty((0, 4))
 
 
 def thin_dots(pts, max_rows: int) -> np.ndarray:

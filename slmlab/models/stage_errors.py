@@ -35,7 +35,7 @@ import pandas as pd
 from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from .base import get_model_class
-from .folds import thin_dots
+from .folds import position_keys, thin_dots
 from .frames import world_positions
 
 __all__ = ["FITS", "MISFIT", "ITERATIONS", "SIGNIFICANCE", "ROWS", "CHECK_ROWS", "corrected_for_stage"]
@@ -66,7 +66,7 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
     where measured, ``offsets_um`` per position
     ``{"sequence:position": [x, y, z]}`` and their ``rms_um`` and ``standard_error_um`` per coordinate."""
     pts, world, mode = world_positions(cal, mode)
-    keys = _position_keys(pts)
+    keys = position_keys(pts)
     if mode == "moves" or len(np.unique(keys)) < 2:
         return cal, {"applied": False, "why": "no stage positions whose dots' world positions are known"}
     try:
@@ -98,10 +98,6 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
                                  + ", ".join(f"{c} {1e3 * v:.3g} um" for c, v in zip("XYZ", rms))), **report}
 
 
-def _position_keys(pts) -> np.ndarray:
-    return (pts["sequence"].astype(str) + ":" + pts["position"].astype(str)).to_numpy()
-
-
 def _depth_degree(world: np.ndarray) -> list[int]:
     """The Soloff degrees of the first, quick check: cubic across the field, quadratic in depth (less with
     fewer depths)."""
@@ -127,7 +123,7 @@ def _offsets(sub: CalibrationSet, mode: str, pinhole) -> tuple[pd.DataFrame, np.
     the commanded stage positions), and the offsets' typical standard error (3,) [mm]."""
     pts, world, _ = world_positions(sub, mode)
     r = pinhole.reconstruct(pts[IMAGE_COLUMNS].to_numpy(float)) - world
-    keys = _position_keys(pts)
+    keys = position_keys(pts)
     groups = pd.DataFrame(r, columns=list("XYZ")).groupby(keys)
     means, count = groups.mean(), groups.size().to_numpy(float)
     within = np.sqrt(groups.var(ddof=1).mean().to_numpy())
@@ -142,7 +138,7 @@ def _with_offsets(cal: CalibrationSet, mode: str, offsets: pd.DataFrame) -> Cali
     z_mm``: the corrected world position less the commanded stage position; rows no model calibrates on, such
     as a static ``grid`` pair, keep what they had), the stage columns unchanged."""
     pts, world, _ = world_positions(cal, mode)
-    keys = _position_keys(pts)
+    keys = position_keys(pts)
     known = np.isin(keys, offsets.index)
     moved = world.copy()
     moved[known] += offsets.loc[keys[known]].to_numpy()
