@@ -279,3 +279,28 @@ def test_the_local_search_finds_dots_beside_a_saturated_streak():
     ok, where, sig = search_missing(local_contrast(img, dark=True), xy[missing] + 1.5, np.full(7, 9.0), xy[~missing],
                                     10.0, 34.0)
     assert ok.all() and sig.min() >= 10 and np.hypot(*(where - xy[missing]).T).max() < 2, (ok, sig)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_uncompressed_png_holds_the_same_pixels(tmp_path, dtype):
+    from slmlab.virtual.render import write_png
+    top = np.iinfo(dtype).max     # a smooth ramp to compress, the full scale and noise in its corner
+    img = np.linspace(0, top // 2, 53 * 37).reshape(37, 53).astype(dtype)
+    img[:5, :5] = np.random.default_rng(3).integers(0, top, (5, 5), endpoint=True)
+    for compress in (True, False):
+        write_png(tmp_path / f"{compress}.png", img, compress=compress)
+        back = read_image(tmp_path / f"{compress}.png")
+        assert back.dtype == dtype and np.array_equal(back, img)
+    assert (tmp_path / "False.png").stat().st_size > (tmp_path / "True.png").stat().st_size
+
+
+def test_the_chosen_method_s_dots_are_those_of_extract_image():
+    """choose_method hands back the dots it found by the method it chose, from the same search:
+    what extract_image gives by that method, dot for dot."""
+    from slmlab.images.extract import choose_method
+    img, _ = render_plate(slmlab.preset("paper"), slmlab.preset("paper").moving_plate, (0.0, 0.0, 0.3), seed=4)
+    method, res, dots = choose_method(img, 7, 7)
+    again = extract_image(img, 7, 7, method=method)
+    assert method in res and len(dots.table) == 49
+    pd.testing.assert_frame_equal(dots.table, again.table)
+    assert dots.note == again.note and dots.rejected == again.rejected

@@ -458,6 +458,8 @@ def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True) -> tuple[np.nd
     against patches ``p``; a ``censored`` (saturated) pixel counts only where the model is below it."""
     value, jac = _dot_model(theta, x, y, h, jacobian)
     r = value - p
+    if (weight == 1.0).all() and not censored.any():   # unit weights: nothing to scale (the same bits)
+        return r, jac, np.einsum("np,np->n", r, r)
     wt = np.where(censored & (r > 0), 0.0, weight)
     if jac is not None:
         jac *= wt[:, None, :]

@@ -513,9 +513,10 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     return empty
 
 
-def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px) -> ImageDots:
-    """Steps 3-5 of the module docstring on located dots: centres, numbering, report."""
-    table, pl, dropped = _table(loc, method, anchoring["two_level"])
+def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px, tabled=None) -> ImageDots:
+    """Steps 3-5 of the module docstring on located dots: centres, numbering, report (``tabled``: this
+    method's :func:`_table`, if already made)."""
+    table, pl, dropped = tabled if tabled is not None else _table(loc, method, anchoring["two_level"])
     reason, markers = _candidate_reasons(loc.clean, loc.con, loc.cand, loc.fit)
     radius = dot_diameter_px / 2 if dot_diameter_px else _dot_radius(loc)
     src_all = table["_src"].to_numpy()
@@ -537,37 +538,44 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
                      loc.dark, rep, loc.cand.noise, loc.hot)
 
 
-def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict]:
+def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict, ImageDots]:
     """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
     refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
     glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
     ``fit``, tried only on an image with saturation or streaks around the dots
     (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
     other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
-    :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. Returns the method and the
-    residual [px] of each estimator tried."""
+    :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. ``kw``: :func:`extract_image`'s
+    keywords. Returns the method, the residual [px] of each estimator tried and the image's dots by the method
+    chosen (:func:`extract_image`'s result, from the same search)."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
-        return "moments", {m: float("nan") for m in METHODS}
+        return "moments", {m: float("nan") for m in METHODS}, _no_lattice(loc)
     uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)
-    tables = {m: _table(loc, m, anchoring["two_level"])[0] for m in METHODS if uneven or m != "fit"}
-    res = {m: lattice_residual_px(t) for m, t in tables.items()}
-    most = max(len(t) for t in tables.values())
-    kept = [m for m in tables if len(tables[m]) == most]      # an estimator whose centres leave the lattice
+    tabled = {m: _table(loc, m, anchoring["two_level"]) for m in METHODS if uneven or m != "fit"}
+    res = {m: lattice_residual_px(t[0]) for m, t in tabled.items()}
+    method = _best_method({m: len(t[0]) for m, t in tabled.items()}, res)
+    return method, res, _finish(loc, method, rows, cols, anchoring, kw.get("dot_diameter_px"), tabled[method])
+
+
+def _best_method(kept_dots: dict, res: dict) -> str:
+    """:func:`choose_method`'s rule on each estimator's kept dots and lattice residual [px]."""
+    most = max(kept_dots.values())
+    kept = [m for m in kept_dots if kept_dots[m] == most]      # an estimator whose centres leave the lattice
     others = [res[m] for m in kept if m != "fit" and np.isfinite(res[m])]
     if "fit" in kept and np.isfinite(res["fit"]) and (not others or res["fit"] < AUTO_FIT_RATIO * min(others)):
-        return "fit", res
+        return "fit"
     kept = [m for m in kept if m != "fit"]
     if not kept:
-        return "fit", res
+        return "fit"
     edge = min((m for m in ("ellipse", "edges") if m in kept), key=lambda m: res[m] if np.isfinite(res[m]) else np.inf,
                default=None)
     if "moments" not in kept:
-        return edge, res
+        return edge
     ok = edge is not None and np.isfinite(res[edge]) and np.isfinite(res["moments"])
-    return (edge if ok and res[edge] < AUTO_EDGE_RATIO * res["moments"] else "moments"), res
+    return edge if ok and res[edge] < AUTO_EDGE_RATIO * res["moments"] else "moments"
 
 
 def extract_stereo_pairs(pairs: list[tuple[Path, Path]], rows: int, cols: int, *, anchor: str = "markers") -> pd.DataFrame:

@@ -285,15 +285,13 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
         spec = specs["grid" if pr.sequence == "grid" else "moving"]
         if spec.pattern == "dots":
             kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2)
-            m = method
-            if method == "auto":
-                if (spec.name, side) not in chosen:
-                    chosen[(spec.name, side)], res = choose_method(img, spec.rows, spec.cols, **kw)
-                    notes.append(f"plate {spec.name}, {_VIEW[side]} view: centres by {chosen[(spec.name, side)]} "
-                                 "(lattice residual " + ", ".join(f"{v:.3f} px by {k}" for k, v in res.items())
-                                 + f", on {path.name})")
-                m = chosen[(spec.name, side)]
-            dots = extract_image(img, spec.rows, spec.cols, method=m, **kw)
+            if method == "auto" and (spec.name, side) not in chosen:
+                chosen[(spec.name, side)], res, dots = choose_method(img, spec.rows, spec.cols, **kw)
+                notes.append(f"plate {spec.name}, {_VIEW[side]} view: centres by {chosen[(spec.name, side)]} "
+                             "(lattice residual " + ", ".join(f"{v:.3f} px by {k}" for k, v in res.items())
+                             + f", on {path.name})")
+            else:
+                dots = extract_image(img, spec.rows, spec.cols, method=chosen.get((spec.name, side), method), **kw)
         else:
             dots = detect_board(img, spec)
         if dots.found == 0:

@@ -230,9 +230,9 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     """Extraction on every rig of the zoo under every degradation (:data:`slmlab.virtual.render.DEGRADATIONS`):
     each rig's set simulated once (``design``, :func:`slmlab.virtual.designs.simulate_design`, or by default its
     moving plate whole in view at two Z positions, :func:`plate_in_view_set`), rendered with each degradation
-    (:func:`slmlab.virtual.render.render_rig_set`) into ``folder`` (a temporary one by default), extracted as a
-    user would (:func:`slmlab.images.imageset.extract_set`, ``method``) and held against the truth
-    (:func:`rig_extraction_errors`). One row per degradation and rig: ``images``, ``visible_dots`` (whole in the
+    (:func:`slmlab.virtual.render.render_rig_set`, PNG stored uncompressed: written to be read back at once) into
+    ``folder`` (a temporary one by default), extracted as a user would (:func:`slmlab.images.imageset.extract_set`,
+    ``method``) and held against the truth (:func:`rig_extraction_errors`). One row per degradation and rig: ``images``, ``visible_dots`` (whole in the
     image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
     spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
     found dots, the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be
@@ -250,7 +250,7 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
         cal = plate_in_view_set(rig, seed) if design is None else simulate_design(rig, design, seed=seed)
         for k, name in enumerate(degradations):
             d = write_set(base / f"{rig.preset}-{k:02d}", cal)
-            render_rig_set(cal, d, rig_degradations(rig.kind, name), progress=False)
+            render_rig_set(cal, d, rig_degradations(rig.kind, name), progress=False, compress=False)
             rendered = read_set(d)
             try:
                 pts, notes = extract_set(d, method=method, progress=False)
