@@ -57,8 +57,13 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
       interior positions *and* held-out dots (every fifth dot, :func:`dot_folds`), the training rows at neither.
       Every plane of a Z stack shows the same dots, so holding out planes alone would never test the map
       between the dots (on the PIV Challenge picks, a 16-dot lattice, a polynomial that overfits across the
-      field put dots half a pitch away 0.7 mm off in depth). ``diagonal``: one fifth of the dots per
-      position fold in turn (at least five folds), rather than each fifth with each position.
+      field put dots half a pitch away 0.7 mm off in depth). The end planes, never held out whole, are tested
+      too: each fifth of their dots once, in the folds of the first held-out plane (or the first five folds),
+      their plane in the training. A model too stiff in depth misses most at the ends of the stack, which
+      interior planes alone never show: on a five-plane ChArUco stack of the Greenough rig the Soloff model
+      linear in depth was chosen for Z at 1.28 times the best candidate inside the volume. ``diagonal``: one
+      fifth of the dots per position fold in turn (at least five folds), rather than each fifth with each
+      position.
     * Fewer positions (one pose, two or three planes): held-out dots within every position. Holding out one
       of two planes would measure an extrapolation over the whole depth from the other, which says nothing of
       the error inside the calibrated volume; the depth is then pinned by the models' own limits (a depth
@@ -71,12 +76,14 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
         out = [(key != r, key == r) for r in range(DOT_FOLDS)]
     else:
         held = position_folds(pts)
+        ends = ~np.logical_or.reduce(held)   # the end planes, never held out whole: their dots once, in turn
         if len(held) <= 3 and not diagonal:  # few held-out positions: each with each fifth of the dots
-            out = [(~p & (key != r), p & (key == r)) for p in held for r in range(DOT_FOLDS)]
+            out = [(~p & (key != r), (p | (ends & (i == 0))) & (key == r))
+                   for i, p in enumerate(held) for r in range(DOT_FOLDS)]
         else:  # many (or ``diagonal``): one fifth of the dots per position fold, in turn, every fifth at least once
             n = max(len(held), DOT_FOLDS)
-            out = [(~held[k % len(held)] & (key != k % DOT_FOLDS), held[k % len(held)] & (key == k % DOT_FOLDS))
-                   for k in range(n)]
+            out = [(~held[k % len(held)] & (key != k % DOT_FOLDS),
+                    (held[k % len(held)] | (ends & (k < DOT_FOLDS))) & (key == k % DOT_FOLDS)) for k in range(n)]
     return [(tr, te) for tr, te in out if tr.any() and te.any()]
 
 
@@ -96,7 +103,7 @@ def fold_description(pts, mode: str, *, diagonal: bool = False) -> str:
         return f"{n} folds of interior stage positions (each dot's offset from the training positions)"
     if not planes_held_out(pts, mode):
         return f"{n} folds of held-out dots within every position ({n_pos} position(s): too few to hold out)"
-    return f"{n} folds of interior planes crossed with every fifth dot"
+    return f"{n} folds of interior planes crossed with every fifth dot, the end planes' dots in turn"
 
 
 def dot_folds(pts) -> np.ndarray:
