@@ -166,11 +166,14 @@ def expose(reflectance: np.ndarray, imaging, rng: np.random.Generator) -> np.nda
     height, width = reflectance.shape
     gain = imaging.full_well_e / 255.0  # e- per DN
     signal = _illumination(width, height, imaging.vignetting) * np.float32(imaging.background_dn * gain)
-    signal = signal * reflectance.astype(np.float32, copy=False)
+    signal *= reflectance.astype(np.float32, copy=False)   # in place: the same operations, the same bits
     noise = rng.standard_normal((height, width), dtype=np.float32)
-    signal += noise * np.sqrt(signal + np.float32(imaging.read_noise_e ** 2))
+    spread = signal + np.float32(imaging.read_noise_e ** 2)
+    noise *= np.sqrt(spread, out=spread)
+    signal += noise
     signal *= np.float32(1.0 / gain)
-    return np.clip(np.rint(signal), 0, 255).astype(np.uint8)
+    np.clip(np.rint(signal, out=signal), 0, 255, out=signal)
+    return signal.astype(np.uint8)
 
 
 @lru_cache(maxsize=4)
@@ -309,7 +312,12 @@ def _upsample(coarse: np.ndarray, step: int, width: int, height: int) -> np.ndar
     i0, fx = weights(width)
     rows = coarse[:, i0] * (1 - fx) + coarse[:, i0 + 1] * fx               # (rows of nodes, width)
     j0, fy = weights(height)
-    return (rows[j0] * (1 - fy.T) + rows[j0 + 1] * fy.T).astype(np.float32)
+    out = rows[j0]                          # in place: the same operations, the same bits
+    out *= 1 - fy.T
+    below = rows[j0 + 1]
+    below *= fy.T
+    out += below
+    return out.astype(np.float32)
 
 
 def render_board(microscope: Microscope, texture: np.ndarray, texture_px_per_mm: float, board_size_mm,
@@ -609,18 +617,27 @@ def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generat
     sign = -1.0 if deg.dark else 1.0
     gain, region = _light(deg, w, h, sensor, dots_px)
     hot = sensor.choice(h * w, int(deg.hot_pixel_fraction * h * w), replace=False) if deg.hot_pixel_fraction else None
-    radiance = (np.float32(deg.background_dn) + np.float32(sign * deg.contrast_dn) * coverage) * gain
+    # in place, full-image arrays being the cost (the same operations, so the same bits)
+    radiance = np.multiply(coverage, np.float32(sign * deg.contrast_dn), dtype=np.float32)
+    radiance += np.float32(deg.background_dn)
+    radiance *= gain
     if region is not None:
         radiance += region
     if deg.shot_dn_per_e:
-        radiance += rng.standard_normal((h, w), dtype=np.float32) * np.sqrt(
-            np.maximum(radiance, 0) * np.float32(deg.shot_dn_per_e))
-    radiance += rng.standard_normal((h, w), dtype=np.float32) * np.float32(deg.read_noise_dn)
+        noise = rng.standard_normal((h, w), dtype=np.float32)
+        spread = np.maximum(radiance, 0)
+        spread *= np.float32(deg.shot_dn_per_e)
+        noise *= np.sqrt(spread, out=spread)
+        radiance += noise
+    noise = rng.standard_normal((h, w), dtype=np.float32)
+    noise *= np.float32(deg.read_noise_dn)
+    radiance += noise
     if hot is not None:
         radiance.ravel()[hot] = sensor.uniform(0.5, 1.0, len(hot)).astype(np.float32) * np.float32(full)
     if deg.text_strip_px:
         _text_strip(radiance, deg.text_strip_px, full)
-    return np.clip(np.rint(radiance), 0, full).astype(np.uint8 if deg.bits == 8 else np.uint16)
+    np.clip(np.rint(radiance, out=radiance), 0, full, out=radiance)
+    return radiance.astype(np.uint8 if deg.bits == 8 else np.uint16)
 
 
 def _polygon_coverage(image: np.ndarray, vertices_px: np.ndarray, blur: float, sigma: float, oversample: int = 8
