@@ -135,3 +135,15 @@ def test_a_two_level_plate_in_one_pose_takes_depth_from_the_pinhole(seed):
     assert t.loc["auto", "Z_um"] <= 1.05 * cands["Z_um"].min(), t[["X_um", "Y_um", "Z_um"]]
     if seed == 1:
         assert sel["choice"]["Z"] == "pinhole" and "polynomial-3 (Z)" in sel["skipped"], sel
+
+
+def test_with_every_third_plane_held_out_no_end_plane_is_claimed():
+    """Beyond eight planes every third plane is held out whole, the end planes among them: none is left to
+    test by its dots, and the model file does not say so."""
+    from slmlab.models.folds import end_planes, fold_description, position_folds
+    from slmlab.models.frames import world_positions
+    pts, _, mode = world_positions(simulate_design(rig_by_name("stereo-dic"), "zstack-13", seed=1), "auto")
+    assert not end_planes(position_folds(pts)).any()
+    assert "end planes" not in fold_description(pts, mode)
+    pts5, _, mode5 = world_positions(simulate_design(rig_by_name("stereo-dic"), "zstack-5", seed=1), "auto")
+    assert fold_description(pts5, mode5).endswith("the end planes' dots in turn")

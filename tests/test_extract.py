@@ -304,3 +304,5 @@ def test_the_chosen_method_s_dots_are_those_of_extract_image():
     assert method in res and len(dots.table) == 49
     pd.testing.assert_frame_equal(dots.table, again.table)
     assert dots.note == again.note and dots.rejected == again.rejected
+    with pytest.raises(slmlab.SlmlabError, match="unknown anchor"):
+        choose_method(img, 7, 7, anchor="corner")

@@ -449,16 +449,21 @@ def extract_image_methods(img: np.ndarray, rows: int | None = None, cols: int | 
     """:func:`extract_image` (same parameters) by each centre estimator of ``methods``, as a dict from method to
     :class:`ImageDots`, the dots found once: detection, lattice, hot pixels and the local search do not
     depend on the estimator (its centres, what refinement drops and the numbering that follows do)."""
-    bad = [m for m in methods if m not in METHODS]
-    if bad:
-        raise SlmlabError(f"unknown centre method {bad[0]!r}; use one of {', '.join(METHODS)}")
-    if anchor not in ("auto", "plate", "markers"):
-        raise SlmlabError(f"unknown anchor {anchor!r}; use 'auto', 'plate' or 'markers'")
+    _check_options(methods, anchor)
     loc = _locate(img, rows, cols, dark, two_level)
     if loc.fit is None:
         return {m: _no_lattice(loc) for m in methods}
     anchoring = dict(anchor=anchor, marker_origin=marker_origin, two_level=two_level)
     return {m: _finish(loc, m, rows, cols, anchoring, dot_diameter_px) for m in methods}
+
+
+def _check_options(methods, anchor: str) -> None:
+    """:class:`SlmlabError` for an unknown centre method or anchor."""
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise SlmlabError(f"unknown centre method {bad[0]!r}; use one of {', '.join(METHODS)}")
+    if anchor not in ("auto", "plate", "markers"):
+        raise SlmlabError(f"unknown anchor {anchor!r}; use 'auto', 'plate' or 'markers'")
 
 
 def _no_lattice(loc: _Located) -> ImageDots:
@@ -550,6 +555,7 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     chosen (:func:`extract_image`'s result, from the same search)."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
+    _check_options(METHODS, anchoring["anchor"])
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
         return "moments", {m: float("nan") for m in METHODS}, _no_lattice(loc)

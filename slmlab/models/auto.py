@@ -25,7 +25,8 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    pin their degree in depth below the number of distinct depths.
 2. **Held-out error inside the calibrated volume** (:func:`slmlab.models.folds.row_folds`): held-out dots
    within positions; crossed with held-out interior planes where a stack has enough of them
-   (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`); interior stage positions on stage moves. Never whole
+   (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`), the end planes' dots tested too (a candidate too
+   stiff in depth misses most there); interior stage positions on stage moves. Never whole
    positions where there are too few to interpolate between: holding out one of two planes measures an
    extrapolation over the full depth, which says nothing of the error inside it. Where step 0 found the stage's
    offsets clearly above their noise, held-out dots within a few positions are measured net of each position's
@@ -418,7 +419,8 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     will see on top of its held-out one: in X and Y they add in quadrature; in Z, where the pinhole's own error
     between the depths is as large, a candidate is dropped only where it differs by more than
     :data:`PINHOLE_Z_BEND` times the larger held-out error. Otherwise a plain polynomial is dropped where it
-    disagrees with every depth-pinned candidate (direct, soloff) by as much (:func:`_drop_if_bent`)."""
+    disagrees with every depth-pinned candidate (direct, soloff) by more than :data:`BETWEEN_DEPTHS` times the
+    larger held-out error (:func:`_drop_if_bent`)."""
     judged = {c: list(e) for c, e in cv.items()}
     depths = len(np.unique(np.round(world[:, 2], 6)))
     pinned = [c for c in ("direct", "soloff") if c in cv]

@@ -19,7 +19,7 @@ from .base import get_model_class
 from .frames import world_positions
 
 __all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
-           "planes_held_out", "fold_description", "position_keys", "held_out_errors", "per_position_offsets",
+           "end_planes", "planes_held_out", "fold_description", "position_keys", "held_out_errors", "per_position_offsets",
            "between_depths", "thin_dots"]
 
 #: sequences with at most this many positions are cross-validated one position at a time
@@ -57,8 +57,8 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
       interior positions *and* held-out dots (every fifth dot, :func:`dot_folds`), the training rows at neither.
       Every plane of a Z stack shows the same dots, so holding out planes alone would never test the map
       between the dots (on the PIV Challenge picks, a 16-dot lattice, a polynomial that overfits across the
-      field put dots half a pitch away 0.7 mm off in depth). The end planes, never held out whole, are tested
-      too: each fifth of their dots once, in the folds of the first held-out plane (or the first five folds),
+      field put dots half a pitch away 0.7 mm off in depth). The end planes, never held out whole where
+      interior planes are held out one at a time (:func:`end_planes`), are tested too: each fifth of their dots once, in the folds of the first held-out plane (or the first five folds),
       their plane in the training. A model too stiff in depth misses most at the ends of the stack, which
       interior planes alone never show: on a five-plane ChArUco stack of the Greenough rig the Soloff model
       linear in depth was chosen for Z at 1.28 times the best candidate inside the volume. ``diagonal``: one
@@ -76,7 +76,7 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
         out = [(key != r, key == r) for r in range(DOT_FOLDS)]
     else:
         held = position_folds(pts)
-        ends = ~np.logical_or.reduce(held)   # the end planes, never held out whole: their dots once, in turn
+        ends = end_planes(held)              # never held out whole: their dots once, in turn
         if len(held) <= 3 and not diagonal:  # few held-out positions: each with each fifth of the dots
             out = [(~p & (key != r), (p | (ends & (i == 0))) & (key == r))
                    for i, p in enumerate(held) for r in range(DOT_FOLDS)]
@@ -85,6 +85,12 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
             out = [(~held[k % len(held)] & (key != k % DOT_FOLDS),
                     (held[k % len(held)] | (ends & (k < DOT_FOLDS))) & (key == k % DOT_FOLDS)) for k in range(n)]
     return [(tr, te) for tr, te in out if tr.any() and te.any()]
+
+
+def end_planes(held: list[np.ndarray]) -> np.ndarray:
+    """The rows of positions no fold of ``held`` (:func:`position_folds`) holds out whole: each sequence's first
+    and last plane where interior planes are held out one at a time; none where every third plane is."""
+    return ~np.logical_or.reduce(held)
 
 
 def planes_held_out(pts, mode: str) -> bool:
@@ -103,7 +109,8 @@ def fold_description(pts, mode: str, *, diagonal: bool = False) -> str:
         return f"{n} folds of interior stage positions (each dot's offset from the training positions)"
     if not planes_held_out(pts, mode):
         return f"{n} folds of held-out dots within every position ({n_pos} position(s): too few to hold out)"
-    return f"{n} folds of interior planes crossed with every fifth dot, the end planes' dots in turn"
+    ends = ", the end planes' dots in turn" if end_planes(position_folds(pts)).any() else ""
+    return f"{n} folds of interior planes crossed with every fifth dot{ends}"
 
 
 def dot_folds(pts) -> np.ndarray:

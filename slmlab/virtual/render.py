@@ -618,7 +618,7 @@ def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generat
     gain, region = _light(deg, w, h, sensor, dots_px)
     hot = sensor.choice(h * w, int(deg.hot_pixel_fraction * h * w), replace=False) if deg.hot_pixel_fraction else None
     # in place, full-image arrays being the cost (the same operations, so the same bits)
-    radiance = np.multiply(coverage, np.float32(sign * deg.contrast_dn), dtype=np.float32)
+    radiance = coverage * np.float32(sign * deg.contrast_dn)
     radiance += np.float32(deg.background_dn)
     radiance *= gain
     if region is not None:
@@ -627,8 +627,7 @@ def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generat
         noise = rng.standard_normal((h, w), dtype=np.float32)
         spread = np.maximum(radiance, 0)
         spread *= np.float32(deg.shot_dn_per_e)
-        noise *= np.sqrt(spread, out=spread)
-        radiance += noise
+        radiance += noise * np.sqrt(spread, out=spread)
     noise = rng.standard_normal((h, w), dtype=np.float32)
     noise *= np.float32(deg.read_noise_dn)
     radiance += noise
