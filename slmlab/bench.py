@@ -273,9 +273,9 @@ def _bench_real_rigs() -> list[BenchLine]:
         what = "virtual 7 x 7 plate, bright dots, 16 bit (case E not present)"
     kw = dict(dark=None, two_level=real is not None)
     rows_cols = (None, None) if real is not None else (7, 7)
-    method, _, _ = choose_method(img, *rows_cols, **kw)
+    method, _, dots = choose_method(img, *rows_cols, **kw)
     ours = best_time(lambda: extract_image(img, *rows_cols, method=method, **kw), repeat=15)
-    found = len(extract_image(img, *rows_cols, method=method, **kw).table)
+    found = len(dots.table)
     params = cv2.SimpleBlobDetector_Params()
     params.blobColor = 255
     params.filterByArea, params.minArea, params.maxArea = True, 100, 20000

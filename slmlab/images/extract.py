@@ -518,7 +518,8 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     return empty
 
 
-def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px, tabled=None) -> ImageDots:
+def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diameter_px,
+            tabled=None) -> ImageDots:
     """Steps 3-5 of the module docstring on located dots: centres, numbering, report (``tabled``: this
     method's :func:`_table`, if already made)."""
     table, pl, dropped = tabled if tabled is not None else _table(loc, method, anchoring["two_level"])

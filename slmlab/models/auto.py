@@ -87,7 +87,7 @@ from .base import Model, get_model_class, register
 from .direct import check_options
 from .folds import (PLANES_FOR_PLANE_FOLDS, between_depths, fold_description, held_out_errors, planes_held_out,
                     row_folds, thin_dots)
-from .frames import world_positions
+from .frames import distinct_levels, world_positions
 from .reference import DEGREES as POLYNOMIAL_DEGREES
 from .stage_errors import corrected_for_stage
 
@@ -141,7 +141,7 @@ def candidate_list(candidates, pts, world: np.ndarray, mode: str) -> tuple[list[
         get_model_class(c)
         if c in ("soloff", "pinhole") and mode == "moves":
             skipped[c] = "needs the dots' world positions (a Z stack or a known target)"
-        elif c == "pinhole" and (depths := len(np.unique(np.round(world[:, 2], 6)))) >= PLANES_FOR_PLANE_FOLDS:
+        elif c == "pinhole" and (depths := distinct_levels(world)) >= PLANES_FOR_PLANE_FOLDS:
             skipped[c] = (f"not needed: {depths} depths, "
                           + ("whose held-out interior planes measure how each candidate bends between them"
                              if planes_held_out(pts, mode) else
@@ -422,7 +422,7 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     disagrees with every depth-pinned candidate (direct, soloff) by more than :data:`BETWEEN_DEPTHS` times the
     larger held-out error (:func:`_drop_if_bent`)."""
     judged = {c: list(e) for c, e in cv.items()}
-    depths = len(np.unique(np.round(world[:, 2], 6)))
+    depths = distinct_levels(world)
     pinned = [c for c in ("direct", "soloff") if c in cv]
     if mode == "moves" or not 2 <= depths < PLANES_FOR_PLANE_FOLDS or not (pinned or "pinhole" in cv):
         return judged, {}

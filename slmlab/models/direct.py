@@ -67,7 +67,7 @@ from ..io import CalibrationSet, IMAGE_COLUMNS
 from ..linefit import point_keys
 from .base import Model, register
 from .folds import row_folds, thin_dots
-from .frames import plate_xy, world_positions
+from .frames import distinct_levels, plate_xy, world_positions
 
 __all__ = ["features", "fit_direct", "fit_frame", "check_options", "DirectModel", "LEGACY_FRAME", "DEGREE_ROWS"]
 
@@ -472,7 +472,7 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
     known_depth = target[:, 2] if mode == "target" else None
     in_z = (pts["sequence"] == "Z").to_numpy()
     frames = {3: fit_frame(w, dots, in_z, depth=known_depth)}
-    depth_cap = (len(np.unique(np.round(target[:, 2], 6))) if mode in ("target", "zstack") else max_degree + 1)
+    depth_cap = distinct_levels(target) if mode in ("target", "zstack") else max_degree + 1
     variance, precision = _variance_components(w, frames[3], target, groups, positions, max_degree, depth_cap)
     if variables != 3:
         frames[4] = fit_frame(w, dots, in_z, depth=known_depth, variables=4)

@@ -58,8 +58,8 @@ def row_folds(pts, mode: str, *, diagonal: bool = False) -> list[tuple[np.ndarra
       Every plane of a Z stack shows the same dots, so holding out planes alone would never test the map
       between the dots (on the PIV Challenge picks, a 16-dot lattice, a polynomial that overfits across the
       field put dots half a pitch away 0.7 mm off in depth). The end planes, never held out whole where
-      interior planes are held out one at a time (:func:`end_planes`), are tested too: each fifth of their dots once, in the folds of the first held-out plane (or the first five folds),
-      their plane in the training. A model too stiff in depth misses most at the ends of the stack, which
+      interior planes are held out one at a time (:func:`end_planes`), are tested too: each fifth of their dots
+      once, in the folds of the first held-out plane (or the first five folds), their plane in the training. A model too stiff in depth misses most at the ends of the stack, which
       interior planes alone never show: on a five-plane ChArUco stack of the Greenough rig the Soloff model
       linear in depth was chosen for Z at 1.28 times the best candidate inside the volume. ``diagonal``: one
       fifth of the dots per position fold in turn (at least five folds), rather than each fifth with each

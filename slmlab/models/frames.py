@@ -23,7 +23,7 @@ from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 
-__all__ = ["SEQUENCES", "STAGE", "plate_xy", "world_positions", "check_axes", "dot_labels"]
+__all__ = ["SEQUENCES", "STAGE", "plate_xy", "world_positions", "distinct_levels", "check_axes", "dot_labels"]
 
 #: sequences whose stage positions are commanded moves
 SEQUENCES = STAGE_SEQUENCES
@@ -107,6 +107,12 @@ def _moving_rows(sequence, seen, position, stage) -> tuple[np.ndarray, bool]:
             continue
         lateral |= bool((np.ptp(stage[this][:, :2], axis=0) > 0).any())
     return rows, lateral
+
+
+def distinct_levels(world: np.ndarray, axis: int = 2) -> int:
+    """How many distinct values (to 1 nm) coordinate ``axis`` of world positions ``(n, 3)`` [mm] takes: a
+    stack's depths by default, a lattice's columns or rows with ``axis`` 0 or 1."""
+    return len(np.unique(np.round(np.asarray(world)[:, axis], 6)))
 
 
 def check_axes(world: np.ndarray, mode: str, path=None) -> None:

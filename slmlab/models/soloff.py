@@ -34,7 +34,7 @@ from ..io import IMAGE_COLUMNS, CalibrationSet
 from .base import Model, register
 from .direct import DEGREE_ROWS
 from .folds import row_folds, thin_dots
-from .frames import dot_labels, world_positions
+from .frames import distinct_levels, dot_labels, world_positions
 from .reference import quadratic_features
 
 __all__ = ["terms", "SoloffModel", "fit_soloff", "DEGREES"]
@@ -182,8 +182,7 @@ class SoloffModel(Model):
                               "cols and pitch, or a known-target set (x_mm, y_mm, z_mm); this set has stage moves "
                               "of a plate whose place on the stage is unknown (use the direct model)", cal.path)
         w = pts[IMAGE_COLUMNS].to_numpy(float)
-        n_z = len(np.unique(np.round(world[:, 2], 6)))
-        n_xy = min(len(np.unique(np.round(world[:, k], 6))) for k in (0, 1))
+        n_z, n_xy = distinct_levels(world), min(distinct_levels(world, k) for k in (0, 1))
         cv = {}
         if degree is None:
             options = [d for d in DEGREES if d[1] < n_z and d[0] < n_xy]

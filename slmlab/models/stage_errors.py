@@ -36,7 +36,7 @@ from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from .base import get_model_class
 from .folds import position_keys, thin_dots
-from .frames import world_positions
+from .frames import distinct_levels, world_positions
 
 __all__ = ["FITS", "MISFIT", "ITERATIONS", "SIGNIFICANCE", "ROWS", "CHECK_ROWS", "corrected_for_stage"]
 
@@ -101,7 +101,7 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
 def _depth_degree(world: np.ndarray) -> list[int]:
     """The Soloff degrees of the first, quick check: cubic across the field, quadratic in depth (less with
     fewer depths)."""
-    return [3, int(min(2, len(np.unique(np.round(world[:, 2], 6))) - 1))]
+    return [3, int(min(2, distinct_levels(world) - 1))]
 
 
 def _does_not_fit(sub: CalibrationSet, pinhole, limit: float, degree=None) -> str:

@@ -232,8 +232,8 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     moving plate whole in view at two Z positions, :func:`plate_in_view_set`), rendered with each degradation
     (:func:`slmlab.virtual.render.render_rig_set`, PNG stored uncompressed: written to be read back at once) into
     ``folder`` (a temporary one by default), extracted as a user would (:func:`slmlab.images.imageset.extract_set`,
-    ``method``) and held against the truth (:func:`rig_extraction_errors`). One row per degradation and rig: ``images``, ``visible_dots`` (whole in the
-    image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
+    ``method``) and held against the truth (:func:`rig_extraction_errors`). One row per degradation and rig:
+    ``images``, ``visible_dots`` (whole in the image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
     spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
     found dots, the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be
     numbered alone and were tracked by the stage motion of the images that were

@@ -199,8 +199,9 @@ def write_png(path: str | Path, image: np.ndarray, *, compress: bool = True) -> 
     (26 against 77 ms), the files a little smaller. Without ``compress`` (an image written to be read back at
     once, in a temporary folder) stored unfiltered and uncompressed: twice the size, a tenth of the time to
     write and to read (2.6 and 2.3 ms against 24 and 16 ms on a noisy 1696 × 1730 image), the same pixels."""
-    params = ([cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
-              if compress else [cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE])
+    params = ([cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE, cv2.IMWRITE_PNG_FILTER,
+               cv2.IMWRITE_PNG_FILTER_SUB] if compress else
+              [cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE])
     ok, buf = cv2.imencode(".png", image, params)
     if not ok:  # pragma: no cover - OpenCV failure
         raise SlmlabError("could not encode the image as PNG", path)
