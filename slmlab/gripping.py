@@ -255,16 +255,33 @@ def locate_gripper(image: np.ndarray, model: GripperModel, side: str, expected_p
     patch = img[y0:y0 + th + 4 * k, x0:x0 + tw + 4 * k]
     r = cv2.matchTemplate(patch, tpl, cv2.TM_CCOEFF_NORMED)
     _, score, _, loc = cv2.minMaxLoc(r)
-    warp = np.array([[1, 0, x0 + loc[0]], [0, 1, y0 + loc[1]]], np.float32)
-    try:
-        _, warp = cv2.findTransformECC(tpl, img, warp, cv2.MOTION_AFFINE if motion == "affine" else cv2.MOTION_TRANSLATION,
-                                       ECC_CRITERIA, mask, 5)
-    except cv2.error:
-        pass
+    warp = _refine_ecc(tpl, img, (x0 + loc[0], y0 + loc[1]), mask, motion)
     if score < 0.5:
         raise SlmlabError(f"gripper not found in the {side} image (template match {score:.2f})")
     t = model.tip_in_template[side]
     return warp[:, :2] @ t + warp[:, 2]
+
+
+#: how far [px] beyond the matched template the ECC refinement may look: it moves the template by a few pixels
+ECC_MARGIN_PX = 48
+
+
+def _refine_ecc(tpl, img, corner_px, mask, motion):
+    """``cv2.findTransformECC`` of the template placed at integer ``corner_px`` in ``img``, on a crop of the
+    image around it (``ECC_MARGIN_PX`` beyond the template): ECC filters and differentiates its whole input
+    image, and a 2048 px image costs ten times the crop for the same warp. Returns the 2 × 3 warp in the
+    image's pixels (the matched placement if ECC fails)."""
+    th, tw = tpl.shape
+    cx, cy = max(int(corner_px[0]) - ECC_MARGIN_PX, 0), max(int(corner_px[1]) - ECC_MARGIN_PX, 0)
+    crop = (slice(cy, cy + th + 2 * ECC_MARGIN_PX), slice(cx, cx + tw + 2 * ECC_MARGIN_PX))
+    warp = np.array([[1, 0, corner_px[0] - cx], [0, 1, corner_px[1] - cy]], np.float32)
+    try:
+        _, warp = cv2.findTransformECC(tpl, np.ascontiguousarray(img[crop]), warp,
+                                       cv2.MOTION_AFFINE if motion == "affine" else cv2.MOTION_TRANSLATION,
+                                       ECC_CRITERIA, None if mask is None else np.ascontiguousarray(mask[crop]), 5)
+    except cv2.error:
+        pass
+    return warp + np.array([[0, 0, cx], [0, 0, cy]], np.float32)
 
 
 def _dark_blobs(image, level_fraction):
