@@ -127,7 +127,8 @@ def position_keys(pts) -> np.ndarray:
 def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None, folds=None, *,
                     by_position: bool = False) -> np.ndarray:
     """Held-out RMS [mm] per coordinate of model ``name`` on ``cal`` (module docstring, step 2); ``folds``:
-    ``(train, test)`` row masks (default :func:`row_folds`). The errors are net of one common offset, or with
+    ``(train, test)`` row masks (default :func:`row_folds`); each fold's model is fitted without its parameters'
+    spread (``spread=False``). The errors are net of one common offset, or with
     ``by_position`` of each held-out position's own (:func:`per_position_offsets`)."""
     pts, world, mode = world_positions(cal, (options or {}).get("mode", "auto"))
     folds = row_folds(pts, mode) if folds is None else folds
@@ -136,7 +137,7 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
     errs = []
     for train_rows, held in folds:
         train = CalibrationSet(pts[train_rows].copy(), cal.meta, path=cal.path)
-        model = cls.fit(train, **(options or {}))
+        model = cls.fit(train, **{**(options or {}), "spread": False})   # nobody reads a fold's σ
         w = pts[held][IMAGE_COLUMNS].to_numpy(float)
         e = model.reconstruct(w) - world[held]
         if mode == "moves":  # one offset per dot and sequence, from the training positions

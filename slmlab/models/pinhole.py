@@ -153,9 +153,10 @@ def plate_views(cal: CalibrationSet, sequences=("X", "Y", "Z", "T"), max_views: 
 
 
 def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: str = "standard", *,
-                     f_guess_px: float | None = None, fix_focal: bool = False) -> StereoPinhole:
+                     f_guess_px: float | None = None, fix_focal: bool = False, spread: bool = True) -> StereoPinhole:
     """``cv2.calibrateCamera`` per camera (with an intrinsic guess), then ``cv2.stereoCalibrate`` (intrinsics
-    fixed). ``f_guess_px``: the initial focal length (default: the image width); ``fix_focal`` keeps it."""
+    fixed). ``f_guess_px``: the initial focal length (default: the image width); ``fix_focal`` keeps it;
+    ``spread``: σ(f) computed (:func:`_calibrate_camera`)."""
     if variant not in VARIANTS:
         raise SlmlabError(f"unknown pinhole distortion variant {variant!r}; use one of {', '.join(VARIANTS)}")
     if len(views) < 3:
@@ -172,9 +173,7 @@ def calibrate_stereo(views: list[dict], image_size: tuple[int, int], variant: st
     out = {}
     for side in "lr":
         pts = [v[side] for v in views]
-        rms, K, d, _, _, std_in, _, _ = cv2.calibrateCameraExtended(obj, pts, (w, h), k0.copy(), None,
-                                                                      flags=flags, criteria=crit)
-        out[side] = (K, d, float(std_in[0, 0]))
+        out[side] = _calibrate_camera((obj, pts, (w, h), k0.copy(), None), dict(flags=flags, criteria=crit), spread)
     # the relative pose of two near-telecentric views is poorly conditioned and OpenCV's stereoCalibrate
     # takes no extrinsic guess: try its refinement options and keep the lowest RMS (recorded)
     best = best_refined = None
@@ -304,44 +303,51 @@ def _centred(k: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarr
 
 
 def _target_cameras(view: dict, size: tuple[int, int], fix: int, path=None,
-                    iterations: int = TARGET_ITERATIONS) -> tuple[np.ndarray, bool, dict]:
+                    iterations: int = TARGET_ITERATIONS, spread: bool = True) -> tuple[np.ndarray, bool, dict]:
     """Both cameras on one non-planar view, up to the standard distortion terms: the DLT's intrinsic guess
     refined by ``cv2.calibrateCamera`` without distortion, then with the standard terms (the variants' terms
     start from there: straight from the DLT the optimiser stalls). Returns the target points as given to
-    OpenCV (mirrored where the images are), whether they are mirrored, and per camera ``(K, distortion, σ(f))``."""
+    OpenCV (mirrored where the images are), whether they are mirrored, and per camera ``(K, distortion, σ(f))``
+    (σ NaN without ``spread``)."""
     mirrored = _mirrored(view, path)
     obj = view["obj"] * ([1.0, 1.0, -1.0] if mirrored else 1.0)
     cams = {}
     for side in "lr":
         cam = (dlt_intrinsics(dlt(obj, view[side]), obj)[0], None, np.nan)
         cam = _refine_camera(obj, view[side], size, cam, NO_DISTORTION | fix, iterations, spread=False)
-        cam = _refine_camera(obj, view[side], size, cam, fix, iterations)
-        cams[side] = cam
+        cams[side] = _refine_camera(obj, view[side], size, cam, fix, iterations, spread=spread)
     return obj, mirrored, cams
 
 
 def _refine_camera(obj: np.ndarray, img: np.ndarray, size: tuple[int, int], cam: tuple, flags: int,
                    iterations: int = TARGET_ITERATIONS, *, spread: bool = True) -> tuple:
     """One camera ``(K, distortion, σ(f))`` refined by ``cv2.calibrateCameraExtended`` on one view, from ``cam``,
-    its principal point moved to the image centre while OpenCV works (:func:`_centred`). Without ``spread``
-    (a step whose σ nobody reads) by ``cv2.calibrateCamera``: the same fit, bit for bit, without the
-    covariance (a quarter of the time); σ(f) is then NaN."""
+    its principal point moved to the image centre while OpenCV works (:func:`_centred`); ``spread``: σ(f)
+    computed (:func:`_calibrate_camera`)."""
     k, shift = _centred(cam[0], size)
     args = ([obj.astype(np.float32)], [(img + shift).astype(np.float32)], size, k,
             None if cam[1] is None else cam[1].copy())
     kw = dict(flags=cv2.CALIB_USE_INTRINSIC_GUESS | flags, criteria=_target_criteria(iterations))
-    if spread:
-        _, k, d, _, _, std_in, _, _ = cv2.calibrateCameraExtended(*args, **kw)
-    else:
-        (_, k, d, _, _), std_in = cv2.calibrateCamera(*args, **kw), np.full((1, 1), np.nan)
+    k, d, std = _calibrate_camera(args, kw, spread)
     k = k.copy()
     k[:2, 2] -= shift
-    return k, d, float(std_in[0, 0])
+    return k, d, std
+
+
+def _calibrate_camera(args: tuple, kw: dict, spread: bool) -> tuple:
+    """``(K, distortion, σ(f))`` of one camera by ``cv2.calibrateCameraExtended``, or without ``spread`` (a fit
+    whose σ nobody reads: held-out folds, a step the next one refines) by ``cv2.calibrateCamera``: the same fit,
+    bit for bit, without the covariance (a quarter of the time); σ(f) is then NaN."""
+    if spread:
+        _, k, d, _, _, std_in, _, _ = cv2.calibrateCameraExtended(*args, **kw)
+        return k, d, float(std_in[0, 0])
+    _, k, d, _, _ = cv2.calibrateCamera(*args, **kw)
+    return k, d, float("nan")
 
 
 def calibrate_target(view: dict, image_size: tuple[int, int], variant: str = "thin-prism", *,
                      fix_focal: bool = False, path=None, start=None,
-                     iterations: int = TARGET_ITERATIONS) -> tuple[StereoPinhole, bool]:
+                     iterations: int = TARGET_ITERATIONS, spread: bool = True) -> tuple[StereoPinhole, bool]:
     """A stereo pinhole pair from one view of a non-planar target (:func:`target_view`; module docstring):
     each camera by :func:`_target_cameras` (or from ``start``, its result) and the variant's terms, then
     ``cv2.stereoCalibrate`` with the intrinsics refined jointly or fixed, the lower RMS kept; every OpenCV fit
@@ -350,10 +356,12 @@ def calibrate_target(view: dict, image_size: tuple[int, int], variant: str = "th
     if variant not in VARIANTS:
         raise SlmlabError(f"unknown pinhole distortion variant {variant!r}; use one of {', '.join(VARIANTS)}")
     fix = cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0
-    obj, mirrored, cams = start or _target_cameras(view, image_size, fix, path, iterations)
+    # σ(f) where it is reported: the last camera refinement's (the variant's terms refine the standard ones)
+    obj, mirrored, cams = start or _target_cameras(view, image_size, fix, path, iterations,
+                                                   spread=spread and not VARIANTS[variant])
     if VARIANTS[variant]:
-        cams = {side: _refine_camera(obj, view[side], image_size, cams[side], VARIANTS[variant] | fix, iterations)
-                for side in "lr"}
+        cams = {side: _refine_camera(obj, view[side], image_size, cams[side], VARIANTS[variant] | fix, iterations,
+                                     spread=spread) for side in "lr"}
     (k1, s1), (k2, s2) = (_centred(cams[side][0], image_size) for side in "lr")
     img1, img2 = (view["l"] + s1).astype(np.float32), (view["r"] + s2).astype(np.float32)
     best = None
@@ -443,7 +451,7 @@ def _held_back_error(cal: CalibrationSet, variant: str, f_guess: float) -> float
     held = pts["sequence"].isin(["X", "Y", "Z"]) & (pts["position"] % 3 == 0)
     train = CalibrationSet(pts[~held].reset_index(drop=True), cal.meta)
     test_pts = pts[held | (pts["position"] == 1)].reset_index(drop=True)
-    stereo = calibrate_stereo(plate_views(train), train.image_size_px, variant, f_guess_px=f_guess)
+    stereo = calibrate_stereo(plate_views(train), train.image_size_px, variant, f_guess_px=f_guess, spread=False)
     a, t = fit_stage_map(train, stereo)
     errs = []
     for seq in ("X", "Y", "Z"):
@@ -466,12 +474,12 @@ def _held_back_dots_errors(view: dict, pts: pd.DataFrame, world: np.ndarray, siz
     w = np.column_stack([view["l"], view["r"]])
     scores = {v: float("inf") for v in VARIANTS}
     try:
-        start = _target_cameras(train, size, cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0)
+        start = _target_cameras(train, size, cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0, spread=False)
     except (cv2.error, SlmlabError):
         return scores
     for v in VARIANTS:
         try:
-            stereo, _ = calibrate_target(train, size, v, fix_focal=fix_focal, start=start)
+            stereo, _ = calibrate_target(train, size, v, fix_focal=fix_focal, start=start, spread=False)
         except (cv2.error, SlmlabError):
             continue
         a, t = fit_world_map(stereo.triangulate(w[~held]), world[~held], stage_map)
@@ -512,13 +520,14 @@ class PinholeModel(Model):
     @classmethod
     def fit(cls, cal: CalibrationSet, *, variant: str | None = None, stage_map: str = "affine",
             views_from: tuple[str, ...] | None = None, fix_focal: bool = False, f_guess_px: float | None = None,
-            iterations: int = TARGET_ITERATIONS, **_):
+            iterations: int = TARGET_ITERATIONS, spread: bool = True, **_):
         """``variant`` ``None`` chooses by held-back positions (a known target: held-back dots);
         ``stage_map`` the map to the stage (or, for a known target, to the world: :func:`fit_world_map`);
         ``views_from`` the sequences used as target views (default: ``T`` if the set has tilted poses, else X,
         Y, Z; a known target uses all its sequences as one view); ``f_guess_px`` defaults to ``L / pixel`` of a
         CMO microscope with a 300 mm perspective distance and 3 µm pixels (a known target: from its DLT);
-        ``iterations`` caps each of OpenCV's fits on a known target or a Z stack (one 3D view)."""
+        ``iterations`` caps each of OpenCV's fits on a known target or a Z stack (one 3D view); without
+        ``spread`` the focal lengths' σ is not computed (NaN: the same fit, faster; held-out folds)."""
         try:
             iterations = int(iterations) if float(iterations) == int(iterations) >= 1 else None
         except (TypeError, ValueError, OverflowError):
@@ -529,12 +538,12 @@ class PinholeModel(Model):
         with one_thread():  # (calibrate pins threads too; this covers a direct call of fit)
             if cal.known_target or _z_stack_only(cal):
                 return cls._fit_target(cal, variant=variant, stage_map=stage_map, fix_focal=fix_focal,
-                                       iterations=iterations)
+                                       iterations=iterations, spread=spread)
             return cls._fit(cal, variant=variant, stage_map=stage_map, views_from=views_from, fix_focal=fix_focal,
-                            f_guess_px=f_guess_px)
+                            f_guess_px=f_guess_px, spread=spread)
 
     @classmethod
-    def _fit(cls, cal, *, variant, stage_map, views_from, fix_focal, f_guess_px):
+    def _fit(cls, cal, *, variant, stage_map, views_from, fix_focal, f_guess_px, spread):
         f_guess = f_guess_px or 1e5
         if views_from is None:
             views_from = ("T",) if not cal.sequence("T").empty else ("X", "Y", "Z")
@@ -550,14 +559,14 @@ class PinholeModel(Model):
                         scores[v] = float("inf")
                 variant = _choose(scores, "standard")
         stereo = calibrate_stereo(plate_views(cal, views_from), cal.image_size_px, variant, f_guess_px=f_guess,
-                                  fix_focal=fix_focal)
+                                  fix_focal=fix_focal, spread=spread)
         a, t = fit_stage_map(cal, stereo, stage_map)
         return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": list(views_from),
                                           "fix_focal": fix_focal, "f_guess_px": f_guess},
                    calibration={**_report(stereo, scores), "held_back": "every 3rd stage position"})
 
     @classmethod
-    def _fit_target(cls, cal, *, variant, stage_map, fix_focal, iterations):
+    def _fit_target(cls, cal, *, variant, stage_map, fix_focal, iterations, spread):
         view, pts, world = target_view(cal)
         scores = {}
         if variant is None:
@@ -565,7 +574,7 @@ class PinholeModel(Model):
             variant = _choose(scores, "thin-prism")
         try:
             stereo, mirrored = calibrate_target(view, cal.image_size_px, variant, fix_focal=fix_focal, path=cal.path,
-                                                iterations=iterations)
+                                                iterations=iterations, spread=spread)
         except cv2.error as exc:
             raise SlmlabError(f"OpenCV could not calibrate a pinhole camera on the known target "
                               f"({str(exc).strip().splitlines()[-1]}); check x_mm, y_mm, z_mm", cal.path) from None
