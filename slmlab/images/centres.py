@@ -411,29 +411,58 @@ def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobi
     the outline), ``Φ`` the normal CDF (a blurred edge), ``B`` a quadratic and ``A`` a plane in ``x/h, y/h``
     [grey levels]. Returns the values ``(n, P)`` and, with ``jacobian``, their Jacobian ``(n, 15, P)``."""
     cx, cy, s11, s12, s22, w = (theta[:, k, None] for k in range(FIT_NONLINEAR))
+    # in place where a temporary would be (n, P): the same operations in the same order, so the same bits
     ux, uy = x[None] - cx, y[None] - cy
-    v1, v2 = s11 * ux + s12 * uy, s12 * ux + s22 * uy
-    q = np.sqrt(v1 * v1 + v2 * v2) + 1e-9
-    t = (1.0 - q) / w
-    dot = 0.5 * erfc(-t / np.sqrt(2.0))
+    v1 = s11 * ux
+    v1 += s12 * uy
+    v2 = s12 * ux
+    v2 += s22 * uy
+    q = v1 * v1
+    q += v2 * v2
+    np.sqrt(q, out=q)
+    q += 1e-9
+    t = np.subtract(1.0, q)
+    t /= w
+    dot = np.divide(-t, np.sqrt(2.0))
+    dot = erfc(dot, out=dot)
+    dot *= 0.5
     xs, ys = x / h, y / h
     surface = np.stack([np.ones_like(xs), xs, ys, xs * xs, xs * ys, ys * ys])         # (6, P)
     a = theta[:, FIT_NONLINEAR + 6:] @ surface[:3]                                     # the depth A (n, P)
-    value = theta[:, FIT_NONLINEAR:FIT_NONLINEAR + 6] @ surface + a * dot
+    value = theta[:, FIT_NONLINEAR:FIT_NONLINEAR + 6] @ surface
+    value += a * dot
     if not jacobian:
         return value, None
-    g = a * np.exp(-0.5 * t * t) / (np.sqrt(2 * np.pi) * w)                           # −dI/dq
+    g = t * t
+    g *= -0.5
+    np.exp(g, out=g)
+    np.multiply(a, g, out=g)
+    g /= np.sqrt(2 * np.pi) * w                                                        # −dI/dq
     gq = g / q
     jac = np.empty((len(value), FIT_PARAMETERS, value.shape[1]))                  # parameters before pixels
-    np.multiply(gq, v1 * s11 + v2 * s12, out=jac[:, 0])                             # written in place
-    np.multiply(gq, v1 * s12 + v2 * s22, out=jac[:, 1])
-    np.multiply(-gq * v1, ux, out=jac[:, 2])
-    np.multiply(-gq, v1 * uy + v2 * ux, out=jac[:, 3])
-    np.multiply(-gq * v2, uy, out=jac[:, 4])
-    np.multiply(-g, t, out=jac[:, 5])
+    tmp = np.empty_like(value)
+    np.multiply(gq, _sum_of_products(v1, s11, v2, s12, tmp), out=jac[:, 0])        # written in place
+    np.multiply(gq, _sum_of_products(v1, s12, v2, s22, tmp), out=jac[:, 1])
+    np.negative(gq, out=tmp)
+    np.multiply(tmp, v1, out=jac[:, 2])
+    jac[:, 2] *= ux
+    np.multiply(tmp, v2, out=jac[:, 4])
+    jac[:, 4] *= uy
+    np.multiply(v1, uy, out=jac[:, 3])
+    jac[:, 3] += v2 * ux
+    jac[:, 3] *= tmp
+    np.negative(g, out=tmp)
+    np.multiply(tmp, t, out=jac[:, 5])
     jac[:, FIT_NONLINEAR:FIT_NONLINEAR + 6] = surface
     np.multiply(dot[:, None, :], surface[None, :3], out=jac[:, FIT_NONLINEAR + 6:])
     return value, jac
+
+
+def _sum_of_products(a, b, c, d, out):
+    """``a·b + c·d`` into ``out`` (the order of numpy's ``a * b + c * d``)."""
+    np.multiply(a, b, out=out)
+    out += c * d
+    return out
 
 
 def _fit_start(p: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, weight: np.ndarray, centre: np.ndarray,
