@@ -20,8 +20,9 @@ from .io import atomic_write_text
 
 __all__ = ["run_notebook", "longest_first", "main", "THREAD_VARIABLES"]
 
-#: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL), set to 1 unless given
-THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+#: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL, and OpenCV's own pool,
+#: which reads ``OPENCV_FOR_THREADS_NUM`` when it loads), set to 1 unless given
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
 
 
 def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | None = None) -> float:
