@@ -35,7 +35,7 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
     old = {k: os.environ.get(k) for k in (env or {})}
     os.environ.update(env or {})
     os.environ.setdefault("MPLBACKEND", "Agg")
-    for var in THREAD_VARIABLES:  # notebooks run side by side, one core each: BLAS threads would fight over them
+    for var in THREAD_VARIABLES:  # notebooks run side by side, one core each: BLAS and OpenCV threads would fight
         os.environ.setdefault(var, "1")
     try:
         t0 = time.perf_counter()

@@ -411,7 +411,8 @@ def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobi
     the outline), ``Φ`` the normal CDF (a blurred edge), ``B`` a quadratic and ``A`` a plane in ``x/h, y/h``
     [grey levels]. Returns the values ``(n, P)`` and, with ``jacobian``, their Jacobian ``(n, 15, P)``."""
     cx, cy, s11, s12, s22, w = (theta[:, k, None] for k in range(FIT_NONLINEAR))
-    # in place where a temporary would be (n, P): the same operations in the same order, so the same bits
+    # in place where a temporary would be (n, P): the same operations in the same order (only the factors of a
+    # product swapped), so the same bits
     ux, uy = x[None] - cx, y[None] - cy
     v1 = s11 * ux
     v1 += s12 * uy

@@ -128,7 +128,8 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
                     by_position: bool = False) -> np.ndarray:
     """Held-out RMS [mm] per coordinate of model ``name`` on ``cal`` (module docstring, step 2); ``folds``:
     ``(train, test)`` row masks (default :func:`row_folds`); each fold's model is fitted without its parameters'
-    spread (``spread=False``). The errors are net of one common offset, or with
+    spread (``spread=False``: the pinhole's σ(f); the other models ignore it). The errors are net of one common
+    offset, or with
     ``by_position`` of each held-out position's own (:func:`per_position_offsets`)."""
     pts, world, mode = world_positions(cal, (options or {}).get("mode", "auto"))
     folds = row_folds(pts, mode) if folds is None else folds

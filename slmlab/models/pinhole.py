@@ -124,7 +124,8 @@ class StereoPinhole:
 
 def _json_std(std) -> list:
     """Standard deviations for a model file: ``None`` (JSON null) where OpenCV's covariance is singular (the
-    views do not determine the parameter: a telecentric view, for one)."""
+    views do not determine the parameter: a telecentric view, for one) or was not computed (the model's
+    options say ``spread: false``)."""
     return [float(v) if np.isfinite(v) else None for v in std]
 
 
@@ -351,8 +352,9 @@ def calibrate_target(view: dict, image_size: tuple[int, int], variant: str = "th
     """A stereo pinhole pair from one view of a non-planar target (:func:`target_view`; module docstring):
     each camera by :func:`_target_cameras` (or from ``start``, its result) and the variant's terms, then
     ``cv2.stereoCalibrate`` with the intrinsics refined jointly or fixed, the lower RMS kept; every OpenCV fit
-    stops after ``iterations`` steps. Returns the pair (in the target's frame, mirrored where the images are)
-    and whether the images are mirror images of it."""
+    stops after ``iterations`` steps; ``spread``: σ(f) computed, at the last camera step (with ``start`` and the
+    ``standard`` variant, the σ ``start`` carries). Returns the pair (in the target's frame, mirrored where the
+    images are) and whether the images are mirror images of it."""
     if variant not in VARIANTS:
         raise SlmlabError(f"unknown pinhole distortion variant {variant!r}; use one of {', '.join(VARIANTS)}")
     fix = cv2.CALIB_FIX_FOCAL_LENGTH if fix_focal else 0
@@ -562,7 +564,7 @@ class PinholeModel(Model):
                                   fix_focal=fix_focal, spread=spread)
         a, t = fit_stage_map(cal, stereo, stage_map)
         return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": list(views_from),
-                                          "fix_focal": fix_focal, "f_guess_px": f_guess},
+                                          "fix_focal": fix_focal, "f_guess_px": f_guess, "spread": spread},
                    calibration={**_report(stereo, scores), "held_back": "every 3rd stage position"})
 
     @classmethod
@@ -581,7 +583,8 @@ class PinholeModel(Model):
         a, t = fit_world_map(stereo.triangulate(np.column_stack([view["l"], view["r"]])), world, stage_map)
         sequences = list(dict.fromkeys(pts["sequence"]))
         return cls(stereo, a, t, options={"variant": variant, "stage_map": stage_map, "views_from": sequences,
-                                          "fix_focal": fix_focal, "f_guess_px": None, "iterations": iterations},
+                                          "fix_focal": fix_focal, "f_guess_px": None, "iterations": iterations,
+                                          "spread": spread},
                    calibration={**_report(stereo, scores), "held_back": "every 3rd dot",
                                 "world_from": f"{'known target' if cal.known_target else 'Z stack of a plate'}: "
                                               f"one view of {len(pts)} dots at "

@@ -67,6 +67,7 @@ def corrected_for_stage(cal: CalibrationSet, mode: str, pinhole_options: dict) -
     ``{"sequence:position": [x, y, z]}`` and their ``rms_um`` and ``standard_error_um`` per coordinate."""
     pts, world, mode = world_positions(cal, mode)
     keys = position_keys(pts)
+    pinhole_options = {**pinhole_options, "spread": False}   # its fits' σ(f) is never read here
     if mode == "moves" or len(np.unique(keys)) < 2:
         return cal, {"applied": False, "why": "no stage positions whose dots' world positions are known"}
     try:
