@@ -257,9 +257,9 @@ def locate_gripper(image: np.ndarray, model: GripperModel, side: str, expected_p
     patch = img[y0:y0 + th + 4 * k, x0:x0 + tw + 4 * k]
     r = cv2.matchTemplate(patch, tpl, cv2.TM_CCOEFF_NORMED)
     _, score, _, loc = cv2.minMaxLoc(r)
-    warp = _refine_ecc(tpl, img, (x0 + loc[0], y0 + loc[1]), mask, motion)
-    if score < 0.5:
+    if score < 0.5:   # before the refinement: no ECC on a gripper that is not there
         raise SlmlabError(f"gripper not found in the {side} image (template match {score:.2f})")
+    warp = _refine_ecc(tpl, img, (x0 + loc[0], y0 + loc[1]), mask, motion)
     t = model.tip_in_template[side]
     return warp[:, :2] @ t + warp[:, 2]
 

@@ -483,12 +483,14 @@ def _fit_start(p: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, weight: np
     return theta
 
 
-def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True, unit=False
+              ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Weighted residuals ``(n, P)``, Jacobian (with ``jacobian``) and cost ``(n,)`` of :func:`_dot_model`
-    against patches ``p``; a ``censored`` (saturated) pixel counts only where the model is below it."""
+    against patches ``p``; a ``censored`` (saturated) pixel counts only where the model is below it; ``unit``:
+    every weight is 1."""
     value, jac = _dot_model(theta, x, y, h, jacobian)
     r = value - p
-    if (weight == 1.0).all() and not censored.any():   # unit weights: nothing to scale (the same bits)
+    if unit and not censored.any():   # unit weights: nothing to scale (the same bits)
         return r, jac, np.einsum("np,np->n", r, r)
     wt = np.where(censored & (r > 0), 0.0, weight)
     if jac is not None:
@@ -507,17 +509,18 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
     a large dot beside a steep glare has its moments' start pulled by more than 2 px)."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
+    unit = bool((np.asarray(weight) == 1.0).all())   # once, not at every step
     theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur)
     lam = np.full(len(p), 1e-4)
     active = np.arange(len(p))                # the dots still moving (each iteration works on those alone)
     for _ in range(iterations):
         i = active
-        r, jac, cost = _fit_cost(theta[i], p[i], x, y, h, w[i], censored[i])
+        r, jac, cost = _fit_cost(theta[i], p[i], x, y, h, w[i], censored[i], unit=unit)
         jtj = jac @ jac.transpose(0, 2, 1)                                         # batched BLAS
         diag = np.einsum("nkk->nk", jtj) + 1e-12
         step = np.linalg.solve(jtj + lam[i, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
                                -(jac @ r[..., None]))[..., 0]
-        trial = _fit_cost(theta[i] + step, p[i], x, y, h, w[i], censored[i], jacobian=False)[2]
+        trial = _fit_cost(theta[i] + step, p[i], x, y, h, w[i], censored[i], jacobian=False, unit=unit)[2]
         better = np.isfinite(trial) & (trial < cost)
         theta[i[better]] += step[better]
         lam[i] = np.where(better, lam[i] / 3, lam[i] * 4)
