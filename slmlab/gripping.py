@@ -10,9 +10,10 @@ so from above it is one tapered silhouette ending in a tip a few tens of µm wid
 middle of the tip's end, at the jaws' mid-height.
 
 Loop: render both views → locate the gripper by template matching (a model rendered from a reference view,
-``cv2.matchTemplate`` on an image pyramid, then ``cv2.findTransformECC`` with an affine motion for sub-pixel
-accuracy; the tip point follows by that affine transform; the model is re-rendered each look at the pose
-the commanded moves predict, so its appearance follows the local distortion and defocus) and the wire, once,
+``cv2.matchTemplate`` on an image pyramid, then ``cv2.findTransformECC`` on a crop around the match for
+sub-pixel accuracy; the tip point follows by that transform; the model is re-rendered each look at the pose
+the commanded moves predict, so its appearance follows the local distortion and defocus and only a
+translation is left to find) and the wire, once,
 before the gripper covers it, in a region of interest computed from
 the hub's position (hub found as the largest round dark blob; wire pixels fitted by ``cv2.fitLine``); the
 gripping position is the point of the wire at the chosen distance from the hub in the left view, and where the
