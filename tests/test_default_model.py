@@ -59,9 +59,22 @@ def test_many_depths_at_few_positions_need_no_pinhole_and_say_why():
     candidate there, and the reason given is the depths, not held-out planes that no fold holds out."""
     sel = calibrate(simulate_design(rig_by_name("stereo-dic"), "two-level-3z", seed=1)).calibration["selection"]
     assert "pinhole" not in sel["held_out_rms_mm"]
-    assert sel["skipped"]["pinhole"] == ("not needed: 6 depths, too close for a candidate fitted through them all "
-                                         "to bend far between them")
+    assert sel["skipped"]["pinhole"] == ("not needed: 6 depths, the depth-pinned candidates judge how the "
+                                         "polynomials bend between them")
     assert sel["held_out_by"].startswith("5 folds of held-out dots within every position")
+
+
+def test_a_polynomial_that_bends_between_close_depths_is_dropped():
+    """A two-level plate at three positions of a random Greenough rig: six depths in close pairs, no plane held
+    out. The polynomial of degree 4 is first by held-out dots within positions and bends between the depths
+    (3.6 and 5.9 times the cubic in X and Y inside the volume, before the check ran on sets of five depths and
+    more); the depth-pinned candidates catch it, and the default is within 5 % of the best plain polynomial."""
+    t = _table("greenough:1", "two-level-3z", 1)
+    sel = t.attrs["selection"]
+    assert {"polynomial-4 (X)", "polynomial-4 (Y)"} <= set(sel["skipped"]), sel["skipped"]
+    assert sel["skipped"]["polynomial-4 (X)"].startswith("bends between the 6 calibrated depths")
+    best = t.loc[[f"polynomial-{d}" for d in (1, 2, 3, 4)], ["X_um", "Y_um"]].min()
+    assert (t.loc["auto", ["X_um", "Y_um"]] <= 1.05 * best).all(), (t.loc["auto"], best)
 
 
 @pytest.mark.parametrize("seed", [1, 2])
