@@ -319,6 +319,16 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
     if variance is None:  # an estimate still moving at the last iteration feeds on itself: the first one stays
         s_u2 = np.where(settled, s_u2, first)
     offsets = _means(target - phi @ coef, inv, n_g, wts)
+    return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv,
+            "offsets": offsets, "within": within, "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2),
+            "sigma_u_mm": np.sqrt(s_u2), "cov": _coefficient_cov(designs, coef, mask, s_e2, clusters)}
+
+
+def _coefficient_cov(designs, coef: np.ndarray, mask: np.ndarray, s_e2: np.ndarray, clusters) -> np.ndarray:
+    """The coefficients' covariance ``(3, m, m)`` of :func:`_solve`'s fit: ``σe²·(AᵀA)⁻¹`` per coordinate, or
+    the cluster-robust sandwich where ``clusters`` labels rows whose errors are shared. ``designs``: per
+    coordinate ``(A, V, b)`` with ``(AᵀA)⁺ = V Vᵀ``."""
+    m = coef.shape[0]
     cov = np.zeros((3, m, m))
     for k in range(3):
         idx = np.flatnonzero(mask[:, k])
@@ -333,9 +343,7 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             score = a * (b - a @ coef[idx, k])[:, None]
             sums = np.stack([np.bincount(cinv, score[:, j], n_c) for j in range(score.shape[1])], axis=1)
             cov[k][np.ix_(idx, idx)] = bread @ (sums.T @ sums) @ bread * n_c / max(n_c - 1, 1)
-    return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv,
-            "offsets": offsets, "within": within, "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2),
-            "sigma_u_mm": np.sqrt(s_u2), "cov": cov}
+    return cov
 
 
 def _held_out_error(phi, target, groups, positions, folds, variance, precision, mask=None) -> np.ndarray:
