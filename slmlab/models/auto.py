@@ -118,7 +118,8 @@ TIE = 0.02
 #: a candidate other than the plain polynomial wins only where it is better than it by more than this share
 MARGIN = 0.05
 #: a plain polynomial that disagrees between the calibrated depths with every depth-pinned candidate (direct,
-#: soloff) by more than this many times the larger of their held-out errors bends where nothing was measured
+#: soloff) by more than this many times the larger of their held-out errors bends where nothing was measured;
+#: so does a depth-pinned candidate that disagrees so with every other one, two of which agree within it
 BETWEEN_DEPTHS = 1.5
 #: where the pinhole pair judges, a candidate whose Z differs from it between the depths by more than this many
 #: times the larger of their held-out errors bends where nothing was measured
@@ -155,7 +156,8 @@ def candidate_list(candidates, pts, world: np.ndarray, mode: str) -> tuple[list[
             skipped[c] = (f"not needed: {depths} depths, "
                           + ("whose held-out interior planes measure how each candidate bends between them"
                              if planes_held_out(pts, mode) else
-                             "the depth-pinned candidates judge how the polynomials bend between them"))
+                             "the candidates judge each other's bends between them (with direct or soloff "
+                             "among them)"))
         else:
             out.append((c, c, dict(PINHOLE) if c == "pinhole" else {}))
     return out, skipped
@@ -457,13 +459,26 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     for k in range(3):
         for label in [c for c in cv if _is_polynomial(c)] if pinned else []:
             _drop_if_bent(judged, skipped, cv, label, k, {r: gap(label, r, k) for r in pinned}, depths)
-        for label in pinned:  # a depth-pinned candidate can bend too: where every other one standing agrees
-            others = [r for r in cv if r != label and np.isfinite(judged[r][k])]  # with some third, not with it
-            agree = any(gap(a, b, k) <= BETWEEN_DEPTHS * max(cv[a][k], cv[b][k])
-                        for i, a in enumerate(others) for b in others[i + 1:])
-            if agree:
-                _drop_if_bent(judged, skipped, cv, label, k, {r: gap(label, r, k) for r in others}, depths)
+        _drop_bent_pinned(judged, skipped, cv, pinned, k, lambda a, b: max(gap(a, b, k), gap(b, a, k)), depths)
     return judged, {}
+
+
+def _drop_bent_pinned(judged: dict, skipped: dict, cv: dict, pinned: list[str], k: int, gap2, depths: int):
+    """Drop for coordinate ``k`` each depth-pinned candidate that differs between the depths from every other
+    candidate standing (``gap2(a, b)``: their RMS difference there, both ways) by more than
+    :data:`BETWEEN_DEPTHS` times the larger held-out error, where two of those others agree within it (module
+    docstring, step 2). Every pinned candidate is judged against the same candidates, so the order of the
+    candidates does not matter."""
+    standing = [r for r in cv if np.isfinite(judged[r][k])]
+    gaps = {a: {b: gap2(a, b) for b in standing if b != a} for a in standing}
+    drop = []
+    for label in [c for c in pinned if c in standing]:
+        others = [r for r in standing if r != label]
+        agree = any(not _bent(gaps[a][b], cv[a][k], cv[b][k]) for i, a in enumerate(others) for b in others[i + 1:])
+        if agree and all(_bent(gaps[label][r], cv[label][k], cv[r][k]) for r in others):
+            drop.append(label)
+    for label in drop:
+        _drop_if_bent(judged, skipped, cv, label, k, gaps[label], depths)
 
 
 def _drop_if_bent(judged: dict, skipped: dict, cv: dict, label: str, k: int, gaps: dict[str, float], depths: int,
@@ -471,8 +486,15 @@ def _drop_if_bent(judged: dict, skipped: dict, cv: dict, label: str, k: int, gap
     """Drop ``label`` for coordinate ``k`` (``judged`` to infinity, the reason in ``skipped``) where it differs
     between the depths from every reference in ``gaps`` (``{reference: RMS difference [mm]}``) by more than
     ``limit`` times the larger of the two held-out errors."""
-    if all(g > limit * max(cv[label][k], cv[r][k]) for r, g in gaps.items()):
+    if all(_bent(g, cv[label][k], cv[r][k], limit) for r, g in gaps.items()):
         judged[label][k] = float("inf")
         skipped[f"{label} ({'XYZ'[k]})"] = (f"bends between the {depths} calibrated depths: "
                                            + ", ".join(f"{1e3 * g:.3g} um from {r}" for r, g in gaps.items())
-                                           + f", held-out {1e3 * min(cv[r][k] for r in gaps):.3g} um")
+                                           + f", held-out {1e3 * cv[label][k]:.3g} um (theirs from "
+                                           + f"{1e3 * min(cv[r][k] for r in gaps):.3g} um)")
+
+
+def _bent(gap_mm: float, a_mm: float, b_mm: float, limit: float = BETWEEN_DEPTHS) -> bool:
+    """Whether two candidates with held-out errors ``a_mm`` and ``b_mm`` differ between the depths by
+    ``gap_mm``, more than ``limit`` times the larger: one of them bends where nothing was measured."""
+    return gap_mm > limit * max(a_mm, b_mm)

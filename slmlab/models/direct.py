@@ -77,6 +77,7 @@ RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal ma
 DEGREE_ROWS = 6000  # sets with more rows choose their degree on every k-th dot (at most this many rows)
 #: the stage's error per position (:func:`_solve`) has settled when an iteration moves it by less than this share
 SETTLED = 0.01
+XY = np.array([True, True, False])  # the coordinates whose stage error is a random effect (:func:`_theta`)
 
 
 def _exponents(degree: int, nvar: int = 3) -> list[tuple[int, ...]]:
@@ -258,14 +259,16 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
     (``σe``: the scatter of one row, ``σu``: the
     stage's error per position, both from the previous iteration's residuals, or fixed by ``variance =
     (σe², σu²)``, each ``(3,)`` [mm²]: estimate them once with a rich polynomial, else a model's misfit would
-    pass for stage error). An estimate of ``σu`` that has not settled (:data:`SETTLED`) when the iterations end
-    is feeding on itself: down-weighting the positions' means lets the fit's means drift from them, which raises
-    ``σu``, which down-weights them further. The first estimate (from ordinary least squares) is kept then. Where
+    pass for stage error). An estimate of ``σu`` in X or Y still rising when the iterations end (by more than
+    :data:`SETTLED` at the last one, and above the first) is feeding on itself: down-weighting the positions'
+    means lets the fit's means drift from them, which raises ``σu``, which down-weights them further. Its first
+    estimate (ordinary least squares, every row at full weight) replaces it; ``σe``, from the scatter within
+    positions, which the drift hardly touches, stays (Z's ``θ`` is 0: its estimate does not feed back). Where
     the positions' means carry how X or Y changes with depth (a Z stack of a flat plate) the drift is a shear:
     on 13 planes of a random Greenough rig (``greenough:3``) ``σu`` in Y went 0.23, 0.40, 0.56 ... 3.5 µm, and
     the direct model's Y was 0.7 % of depth off (1.8 µm RMS inside the volume, against 0.15 µm for the Soloff
-    model; 0.18 µm with the first estimate). Robust weights: Huber first, then rejection beyond 10 robust sigmas (inliers keep
-    full weight, gross outliers get none). ``clusters``: labels of rows whose errors are shared (a plate's
+    model; 0.20 µm with the first estimate). Robust weights: Huber first, then rejection beyond 10 robust
+    sigmas (inliers keep full weight, gross outliers get none). ``clusters``: labels of rows whose errors are shared (a plate's
     dots, whose fabrication errors are in every plane of a Z stack): the coefficients' covariance is then the
     cluster-robust sandwich, else ``σe²·(AᵀA)⁻¹``. ``precision``: relative weights ``(n, 3)`` of the rows
     per coordinate (mean 1), the inverse of how the scatter of one point grows with defocus; ``σe`` is then
@@ -308,16 +311,16 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
             live = n_t > 0.5
             s_u2, previous = np.maximum(np.mean(rm[live] ** 2, 0) - s_e2 * np.mean(1 / n_t[live]), 0.0), s_u2
             first = s_u2 if it == 0 else first
-            settled = np.abs(np.sqrt(s_u2) - np.sqrt(previous)) <= SETTLED * np.sqrt(s_u2) + 1e-15
+            rising = (np.sqrt(s_u2) - np.sqrt(previous) > SETTLED * np.sqrt(s_u2)) & (s_u2 > first) & XY
             theta = _theta(s_e2, s_u2, n_t)
         new = _robust_weights(np.linalg.norm(within * np.sqrt(hw / s_e2), axis=1), wts, it)
-        if it >= 4 and np.allclose(new, wts, atol=1e-4) and (variance is not None or settled.all()):
+        if it >= 4 and np.allclose(new, wts, atol=1e-4) and (variance is not None or not rising.any()):
             break
         if variance is not None and np.array_equal(new, wts) and (it >= 3 or (new == 1.0).all()):
             break  # a fixed point (θ fixed, the same weights): every further iteration repeats this one, bit for bit
         wts = new
-    if variance is None:  # an estimate still moving at the last iteration feeds on itself: the first one stays
-        s_u2 = np.where(settled, s_u2, first)
+    if variance is None:  # an estimate still rising at the last iteration feeds on itself: the first one stays
+        s_u2 = np.where(rising, first, s_u2)
     offsets = _means(target - phi @ coef, inv, n_g, wts)
     return {"coef": coef, "weights": wts, "feature_mean": wts @ phi / wts.sum(), "labels": labels, "inv": inv,
             "offsets": offsets, "within": within, "pinv": pinv, "sigma_e_mm": np.sqrt(s_e2),
@@ -330,6 +333,10 @@ def _coefficient_cov(designs, coef: np.ndarray, mask: np.ndarray, s_e2: np.ndarr
     coordinate ``(A, V, b)`` with ``(AᵀA)⁺ = V Vᵀ``."""
     m = coef.shape[0]
     cov = np.zeros((3, m, m))
+    if clusters is not None:
+        _, cinv = np.unique(clusters, return_inverse=True)
+        cinv = cinv.ravel()
+        n_c = cinv.max() + 1
     for k in range(3):
         idx = np.flatnonzero(mask[:, k])
         a, vk, b = designs[k]
@@ -337,9 +344,6 @@ def _coefficient_cov(designs, coef: np.ndarray, mask: np.ndarray, s_e2: np.ndarr
         if clusters is None:
             cov[k][np.ix_(idx, idx)] = s_e2[k] * bread
         else:
-            _, cinv = np.unique(clusters, return_inverse=True)
-            cinv = cinv.ravel()
-            n_c = cinv.max() + 1
             score = a * (b - a @ coef[idx, k])[:, None]
             sums = np.stack([np.bincount(cinv, score[:, j], n_c) for j in range(score.shape[1])], axis=1)
             cov[k][np.ix_(idx, idx)] = bread @ (sums.T @ sums) @ bread * n_c / max(n_c - 1, 1)
