@@ -71,3 +71,28 @@ def test_model_file_round_trip_and_version_check(tmp_path, paper_set, monkeypatc
     path.write_text("{")
     with pytest.raises(slmlab.SlmlabError, match="invalid JSON"):
         slmlab.load_model(path)
+
+
+def _pinned_case(order, gaps_um, cv_um):
+    """Run the default's check of depth-pinned candidates (one coordinate) on made-up held-out errors and
+    differences between the depths [µm]; returns what it dropped."""
+    from slmlab.models.auto import _drop_bent_pinned
+    cv = {c: [1e-3 * cv_um[c]] for c in order}
+    judged = {c: list(v) for c, v in cv.items()}
+    skipped = {}
+    gap2 = lambda a, b: 1e-3 * gaps_um[frozenset((a, b))]  # noqa: E731
+    _drop_bent_pinned(judged, skipped, cv, [c for c in order if c in ("direct", "soloff")], 0, gap2, 6)
+    return {c for c in order if not np.isfinite(judged[c][0])}, skipped
+
+
+def test_a_pinned_candidate_is_dropped_only_against_a_consensus_and_in_any_order():
+    cv = {"direct": 1.09, "soloff": 1.18, "polynomial-3": 1.18}
+    far = {frozenset(("direct", "soloff")): 7.9, frozenset(("direct", "polynomial-3")): 7.9}
+    agree = {**far, frozenset(("soloff", "polynomial-3")): 0.14}     # the other two agree: direct bends
+    for order in (["direct", "soloff", "polynomial-3"], ["soloff", "polynomial-3", "direct"]):
+        dropped, why = _pinned_case(order, agree, cv)
+        assert dropped == {"direct"} and why["direct (X)"].startswith("bends between the 6 calibrated depths")
+    apart = {**far, frozenset(("soloff", "polynomial-3")): 7.9}      # nobody agrees: nothing to judge by
+    assert _pinned_case(["direct", "soloff", "polynomial-3"], apart, cv)[0] == set()
+    near = {**agree, frozenset(("direct", "polynomial-3")): 1.5}     # within 1.5x of one other: it stays
+    assert _pinned_case(["direct", "soloff", "polynomial-3"], near, cv)[0] == set()
