@@ -470,7 +470,12 @@ def _drop_bent_pinned(judged: dict, skipped: dict, cv: dict, pinned: list[str], 
     docstring, step 2). Every pinned candidate is judged against the same candidates, so the order of the
     candidates does not matter."""
     standing = [r for r in cv if np.isfinite(judged[r][k])]
-    gaps = {a: {b: gap2(a, b) for b in standing if b != a} for a in standing}
+    if not any(c in standing for c in pinned):
+        return
+    gaps = {a: {} for a in standing}
+    for i, a in enumerate(standing):  # each pair once: the difference is taken both ways already
+        for b in standing[i + 1:]:
+            gaps[a][b] = gaps[b][a] = gap2(a, b)
     drop = []
     for label in [c for c in pinned if c in standing]:
         others = [r for r in standing if r != label]

@@ -77,7 +77,9 @@ RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal ma
 DEGREE_ROWS = 6000  # sets with more rows choose their degree on every k-th dot (at most this many rows)
 #: the stage's error per position (:func:`_solve`) has settled when an iteration moves it by less than this share
 SETTLED = 0.01
-XY = np.array([True, True, False])  # the coordinates whose stage error is a random effect (:func:`_theta`)
+#: the coordinates fitted with the stage's error per position as a random effect (X, Y; Z by ordinary least
+#: squares: :func:`_theta`)
+XY = np.array([True, True, False])
 
 
 def _exponents(degree: int, nvar: int = 3) -> list[tuple[int, ...]]:
@@ -237,7 +239,7 @@ def _theta(s_e2, s_u2, n_t) -> np.ndarray:
     dependence is known only between positions (a plate is flat), while within a position the disparity's
     noise would pull ``∂Z/∂D`` towards zero (errors in the variables) once the between part is down-weighted."""
     theta = 1 - np.sqrt(s_e2[None, :] / (s_e2[None, :] + n_t[:, None] * s_u2[None, :]))
-    theta[:, 2] = 0.0
+    theta[:, ~XY] = 0.0
     return theta
 
 
@@ -268,9 +270,9 @@ def _solve(phi, target, groups, positions, *, mask=None, iterations: int = 8, va
     on 13 planes of a random Greenough rig (``greenough:3``) ``σu`` in Y went 0.23, 0.40, 0.56 ... 3.5 µm, and
     the direct model's Y was 0.7 % of depth off (1.8 µm RMS inside the volume, against 0.15 µm for the Soloff
     model; 0.20 µm with the first estimate). Robust weights: Huber first, then rejection beyond 10 robust
-    sigmas (inliers keep full weight, gross outliers get none). ``clusters``: labels of rows whose errors are shared (a plate's
-    dots, whose fabrication errors are in every plane of a Z stack): the coefficients' covariance is then the
-    cluster-robust sandwich, else ``σe²·(AᵀA)⁻¹``. ``precision``: relative weights ``(n, 3)`` of the rows
+    sigmas (inliers keep full weight, gross outliers get none). ``clusters``: labels of rows whose errors are
+    shared (a plate's dots, whose fabrication errors are in every plane of a Z stack): the coefficients'
+    covariance is then the cluster-robust sandwich, else ``σe²·(AᵀA)⁻¹``. ``precision``: relative weights ``(n, 3)`` of the rows
     per coordinate (mean 1), the inverse of how the scatter of one point grows with defocus; ``σe`` is then
     the scatter at unit weight."""
     labels, inv = np.unique(groups, return_inverse=True)
