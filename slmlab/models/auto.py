@@ -22,7 +22,8 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    :data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`, also the pinhole pair (OpenCV, one 3D view of the
    dots: :mod:`slmlab.models.pinhole`; settings :data:`PINHOLE`), the one candidate whose bend in depth is set
    by physics. Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models
-   pin their degree in depth below the number of distinct depths.
+   pin their degree in depth below the number of distinct depths (at most quadratic where a position holds
+   several depths: a two-level plate, a stepped target).
 2. **Held-out error inside the calibrated volume** (:func:`slmlab.models.folds.row_folds`): held-out dots
    within positions; crossed with held-out interior planes where a stack has enough of them
    (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`), the end planes' dots tested too (a candidate too
@@ -58,12 +59,13 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    out no planes, however many depths it has: a two-level plate at three stage positions has six depths, in
    close pairs, and the polynomial of degree 4, first by held-out dots (0.13 µm in X and Y), was 0.49 and
    0.68 µm off inside the volume of a random Greenough rig (``greenough:1``), 3.6 and 5.9 times the cubic.
-   A depth-pinned candidate bends too where its degree in depth is high for the depths' spacing (the direct
-   model's degree 5 through those six depths): it is dropped where it differs from every other candidate
-   still standing by more than :data:`BETWEEN_DEPTHS` times their held-out errors while two of those agree
-   with each other. There the direct model was first by held-out dots in Z (1.09 µm against 1.18) and
-   7.7-9.6 µm from every other candidate between the depths; the Soloff model and the cubic, 0.14 µm apart,
-   were 1.15 µm off in the volume, the direct model 3.3 µm.
+   A depth-pinned candidate bends too where its degree in depth is high for the depths' spacing: it is dropped
+   where it differs from every other candidate still standing by more than :data:`BETWEEN_DEPTHS` times their
+   held-out errors while two of those agree with each other. There the direct model of degree 5 in depth was
+   first by held-out dots in Z (1.09 µm against 1.18) and 7.7-9.6 µm from every other candidate between the
+   depths; the Soloff model and the cubic, 0.14 µm apart, were 1.15 µm off in the volume, the direct model 3.3
+   µm. Held since to a quadratic in depth (:data:`slmlab.models.direct.DEPTH_DEGREE`), the direct model is
+   1.14 µm off there and not dropped; the rule stays for any candidate that bends.
    A known blind spot, where step 0 does not apply (stage moves, a rig the pinhole pair does not describe):
    held-out dots share their position's stage error (positioning noise, lead and straightness errors: the same
    for every dot of a position), and a held-out plane's own offset goes out with the fold's, so no fold sees
