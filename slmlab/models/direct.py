@@ -79,14 +79,15 @@ __all__ = ["features", "fit_direct", "fit_frame", "check_options", "DirectModel"
 LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
 RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal matrices
 DEGREE_ROWS = 6000  # sets with more rows choose their degree on every k-th dot (at most this many rows)
-#: where the stage positions hold more depths than there are positions (a target with depth of its own: a
-#: two-level plate, a stepped target), the highest power of the depth variable ``D`` (and below the number of
-#: distinct depths): the depths of a position share its stage error, and a cubic through the four depths of a
-#: two-level plate at two positions follows those errors as a staircase, as optics; the optics bend smoothly in
-#: depth, as the Soloff model's polynomials (quadratic in Z) say. On ``stereo-piv:3`` two-level-2z the direct
-#: model with a cubic was chosen at 1.39x the best plain polynomial in X and Y; quadratic, it is 0.85x (and the
-#: default, which takes the cubic polynomial there, 1.00x). With one depth per position (a Z stack, a board
-#: stack) the cap is the number of depths, interior planes held out from five on: held to a quadratic, the
+#: where the stage positions hold more depths than there are positions (a target with depth of its own: a two-level
+#: plate, a stepped target), the highest power of the depth variable ``D`` (and below the number of distinct depths):
+#: the depths of a position share its stage error, and a cubic through the four depths of a two-level plate at two
+#: positions follows those errors as a staircase, as optics; the optics bend smoothly in depth, as the Soloff model's
+#: polynomials (quadratic in Z) say. On ``stereo-piv:3`` two-level-2z the direct model with a cubic was chosen at
+#: 1.39x the best plain polynomial in X and Y; quadratic, it is 0.85x (and the default, which takes the cubic
+#: polynomial there, 1.00x); on a stepped target in one pose (``stereo-dic:2``, five depths) the default took the
+#: Soloff model in X at 1.05x, and now takes the direct model at 0.88x. With one depth per position (a Z stack, a
+#: board stack) the cap is the number of depths, interior planes held out from five on: held to a quadratic, the
 #: stage's error per position of a 13-plane stack (``greenough:3``) was estimated at 4 µm in Y, and the direct
 #: model's Y was 3.7 µm off
 DEPTH_DEGREE = 2
