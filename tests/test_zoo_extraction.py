@@ -21,7 +21,7 @@ from slmlab.images.imageset import extract_set
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import extraction_by_degradation, rig_extraction_errors
 from slmlab.virtual.render import render_board_set, render_plate, render_set
-from slmlab.virtual.rigs import make_rig
+from slmlab.virtual.rigs import make_rig, rig_by_name
 
 
 def cli(*args):
@@ -73,6 +73,21 @@ def test_extraction_under_a_degradation_meets_the_targets(rig, degradation, rms_
     assert row["note"] == "" and row["visible_dots"] > 0
     assert row["found_percent"] >= 99 and row["misnumbered"] == 0, row.to_dict()
     assert row["rms_px"] <= rms_px, row.to_dict()
+
+
+@pytest.mark.slow  # rigs drawn at random, none of them shaped on (seconds each)
+@pytest.mark.parametrize("rig, degradation", [
+    ("stereo-piv:6", "the rig's camera"), ("stereo-piv:7", "the rig's camera"), ("greenough:5", "the rig's camera"),
+    ("stereo-dic:5", "the rig's camera"), ("stereo-piv:4", "all together"),
+])
+def test_rigs_drawn_at_random_have_every_visible_dot_found_and_numbered(rig, degradation, tmp_path):
+    """Rigs drawn at random (seeds beyond notebook 11's 1-3): every visible dot found and none numbered wrongly.
+    The centres are not held to 0.05 px here: greenough:5's own camera sees its plate so far out of focus at the
+    ends of its depth that neighbouring dots' blur overlaps (0.074 px RMS, by every centre estimator: 0.074-0.13),
+    and everything together on stereo-piv:4 leaves 0.08 px."""
+    row = extraction_by_degradation([rig_by_name(rig)], [degradation], folder=tmp_path).iloc[0]
+    assert row["note"] == "" and row["visible_dots"] > 0
+    assert row["found_percent"] >= 99 and row["misnumbered"] == 0, row.to_dict()
 
 
 def test_a_plate_cut_by_a_glare_is_numbered_alone_or_not_at_all(tmp_path):
