@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from slmlab.models import calibrate
-from slmlab.models.direct import _exponents
+from slmlab.models.direct import _exponents, _nvar
 from slmlab.studies.zoo import compare_models
 from slmlab.virtual.designs import simulate_design
 from slmlab.virtual.rigs import rig_by_name
@@ -192,7 +192,7 @@ def test_the_direct_model_is_at_most_quadratic_in_depth_where_the_depths_are_kno
     the best plain polynomial in X and Y, and the default is no worse than that polynomial."""
     cal = simulate_design(rig_by_name("stereo-piv:3"), "two-level-2z", seed=1)
     direct = calibrate(cal, "direct")
-    exps = _exponents(int(np.max(direct.degree)), 3)
+    exps = _exponents(int(np.max(direct.degree)), _nvar(direct.frame))
     assert len(exps) == len(direct.coef)
     cubic = np.array([e[2] >= 3 for e in exps])
     assert not np.any(np.asarray(direct.coef)[cubic]), "a power of D above 2"

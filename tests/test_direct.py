@@ -10,7 +10,7 @@ import pytest
 import slmlab
 from slmlab.datasets import converters
 from slmlab.studies import workspace
-from slmlab.models.direct import LEGACY_FRAME, DirectModel
+from slmlab.models.direct import DEPTH_DEGREE, LEGACY_FRAME, DirectModel, _depth_cap
 from slmlab.models.frames import plate_xy
 from slmlab.virtual.simulate import noise_floor
 from slmlab.virtual.sessions import volume_session, zstack_frame, zstack_plate, zstack_session
@@ -261,3 +261,20 @@ def test_the_variance_cache_changes_no_result_and_hands_out_copies(paper_set):
     assert warm == cold
     (s_e2, _), precision = next(iter(direct._VARIANCE_CACHE.values()))
     assert np.array_equal(s_e2, before[0]) and np.array_equal(precision, before[1])  # nobody changed them
+
+
+@pytest.mark.parametrize("mode, depths_by_position, cap", [
+    ("zstack", {1: [0.0], 2: [0.1], 3: [0.2], 4: [0.3], 5: [0.4]}, 5),          # one depth per position: no cap
+    ("target", {1: [0.0], 2: [0.1], 3: [0.2], 4: [0.3]}, 4),                    # a board stack, the same
+    ("target", {1: [0.0, 0.3], 2: [0.2, 0.5]}, DEPTH_DEGREE + 1),               # a two-level plate at two positions
+    ("target", {1: [0.0, 0.1, 0.2, 0.3, 0.4]}, DEPTH_DEGREE + 1),              # a stepped target in one pose
+    ("target", {1: [0.0, 0.5]}, 2),                                            # a two-level plate in one pose
+    ("target", {1: [0.0], 1_000_001: [0.0, 0.3], 2_000_001: [0.1], 2_000_002: [0.2], 2_000_003: [0.4]},
+     DEPTH_DEGREE + 1),                                                        # in one of several sequences
+    ("moves", {1: [0.0], 2: [0.1]}, 6),                                        # stage moves: max_degree + 1
+])
+def test_the_depth_cap_is_quadratic_only_where_a_position_holds_several_depths(mode, depths_by_position, cap):
+    rows = [(p, z) for p, zs in depths_by_position.items() for z in zs for _ in range(3)]
+    positions = np.array([p for p, _ in rows])
+    target = np.column_stack([np.zeros(len(rows)), np.zeros(len(rows)), [z for _, z in rows]])
+    assert _depth_cap(target, positions, mode, max_degree=5) == cap

@@ -22,8 +22,8 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    :data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`, also the pinhole pair (OpenCV, one 3D view of the
    dots: :mod:`slmlab.models.pinhole`; settings :data:`PINHOLE`), the one candidate whose bend in depth is set
    by physics. Each candidate chooses its own settings (degrees) on the whole set; the direct and Soloff models
-   pin their degree in depth below the number of distinct depths (at most quadratic where a position holds
-   several depths: a two-level plate, a stepped target).
+   pin their degree in depth below the number of distinct depths (the Soloff model's is at most quadratic, and
+   so is the direct model's where a position holds more than one depth: a two-level plate, a stepped target).
 2. **Held-out error inside the calibrated volume** (:func:`slmlab.models.folds.row_folds`): held-out dots
    within positions; crossed with held-out interior planes where a stack has enough of them
    (:data:`slmlab.models.folds.PLANES_FOR_PLANE_FOLDS`), the end planes' dots tested too (a candidate too
@@ -75,7 +75,13 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    most of the error a user sees in X and Y, the held-out error is confidently wrong (every fold prefers the
    higher degree) and a set with few positions cannot tell the stage from the optics (the direct model's
    variance components put the stage's error at zero on five planes); where it is near the centroids'
-   (macro stages on stereo-DIC and PIV rigs) it does not matter.
+   (macro stages on stereo-DIC and PIV rigs) it does not matter. A target with depth of its own says more: on a
+   two-level plate at two positions of the Greenough rig the direct model (its random effect per position, the
+   plate's two levels at each) takes the stage's error out and reaches the noise floor in X and Y, below the
+   floor in the commanded frame; no held-out dot shows it, and with two positions every offset is affine, a
+   frame, which the default keeps (on the PIV Challenge's case E, extracted, the direct model puts the stage's
+   error per position at 13-15 µm in X and Y: the plate's tilt to the traverse, and the checked planes hold a
+   model to the traverse), so it is not chosen there (notebook 11).
 3. **Choice**, per coordinate: the plain polynomial with the smallest error as judged in step 2 (the lowest degree
    within :data:`TIE` of the best), unless another candidate is clearly better, by more than :data:`MARGIN`
    of it; then the best of those (within :data:`TIE`, the earlier in :data:`CANDIDATES`).

@@ -44,8 +44,8 @@ user can declare its uncertainty from the stage's datasheet as ``stage_scale_sig
   by their held-out error net of the stage's own positioning noise, with the one-standard-error rule (the
   lowest degree within one standard error of the best), and below the number of positions per sequence.
   Where the dots' world positions are known its degree in the depth variable ``D`` is below the number of
-  distinct depths, and where the positions hold more depths than there are positions (a two-level plate, a stepped
-  target) at most :data:`DEPTH_DEGREE` (quadratic, as the Soloff model's Z).
+  distinct depths, and where a position holds more than one depth (a two-level plate, a stepped target) at most
+  :data:`DEPTH_DEGREE` (quadratic, as the Soloff model's Z).
 * Outliers (mismatched or misindexed dots) are down-weighted by iteratively reweighted least squares (Huber
   weights, then rejection beyond 10 robust sigmas); the rejected rows are reported.
 * Per-point uncertainty ``sX, sY, sZ`` [mm] (1σ): the centroid noise as a function of depth (it grows with
@@ -79,8 +79,8 @@ __all__ = ["features", "fit_direct", "fit_frame", "check_options", "DirectModel"
 LEGACY_FRAME = {"centre": [1024.0, 1024.0, 0.0], "scale": [1024.0, 1024.0, 100.0], "direction": [1.0, 0.0]}
 RCOND = 1e-13  # relative eigenvalue cutoff of the least-squares fits' normal matrices
 DEGREE_ROWS = 6000  # sets with more rows choose their degree on every k-th dot (at most this many rows)
-#: where the stage positions hold more depths than there are positions (a target with depth of its own: a two-level
-#: plate, a stepped target), the highest power of the depth variable ``D`` (and below the number of distinct depths):
+#: where a stage position holds more than one depth (a target with depth of its own: a two-level plate, a stepped
+#: target), the highest power of the depth variable ``D`` (and below the number of distinct depths):
 #: the depths of a position share its stage error, and a cubic through the four depths of a two-level plate at two
 #: positions follows those errors as a staircase, as optics; the optics bend smoothly in depth, as the Soloff model's
 #: polynomials (quadratic in Z) say. On ``stereo-piv:3`` two-level-2z the direct model with a cubic was chosen at
@@ -474,13 +474,14 @@ def plate_length_reference(cal: CalibrationSet, frame: dict, degree: int, coef, 
 
 def _depth_cap(target: np.ndarray, positions: np.ndarray, mode: str, max_degree: int) -> int:
     """One more than the highest power of the depth variable ``D`` allowed: the number of distinct depths where
-    the dots' world positions ``target`` are known, at most :data:`DEPTH_DEGREE` + 1 where the stage
-    ``positions`` (one label per row) hold more depths than there are positions (a target with depth of its own);
-    no cap on stage moves."""
+    the dots' world positions ``target`` are known, at most :data:`DEPTH_DEGREE` + 1 where a stage position (of
+    ``positions``, one label per row) holds more than one depth (a target with depth of its own, in any
+    sequence); no cap on stage moves."""
     if mode not in ("target", "zstack"):
         return max_degree + 1
     depths = distinct_levels(target)
-    return min(depths, DEPTH_DEGREE + 1) if depths > len(np.unique(positions)) else depths
+    several = pd.Series(np.round(target[:, 2], 6)).groupby(np.asarray(positions)).nunique().max() > 1
+    return min(depths, DEPTH_DEGREE + 1) if several else depths
 
 
 def _monomial_mask(degrees, nvar: int, depth_cap: int) -> np.ndarray:

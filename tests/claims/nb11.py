@@ -33,7 +33,7 @@ def check_zoo(t: Tables, size: str) -> None:
     per-cell table; the default's median ratio to the best plain polynomial (hindsight) is 1 and to its own best
     candidate within 5 %; every cell more than 5 % above the best polynomial is listed with its choice; at full
     size (README, Known limits) the floor's and the polynomial's targets are met in about 70-80 % of the cells,
-    the candidates' in over 90 % and the floor in the commanded frame's in over 90 %, most cells that miss
+    the candidates' in over 85 % and the floor in the commanded frame's in over 90 %, most cells that miss
     the floor's are cells where no candidate, chosen with hindsight, reaches it (the candidates' target is missed
     more since the direct model reaches below the floor in the commanded frame on two-level plates: its line,
     :func:`check_unchosen_direct`), and the floor in the commanded
@@ -52,7 +52,7 @@ def check_zoo(t: Tables, size: str) -> None:
     over = {(r.rig, r.design, c) for r in ratios.itertuples() for c in "XYZ" if getattr(r, f"{c}_vs_polynomial") > 1.05}
     claim(over == set(zip(losses["rig"], losses["design"], losses["axis"])), "ext11_losses", "cells",
           "every cell more than 5 % above the best polynomial is listed, and no other")
-    check_unchosen_direct(t)
+    check_unchosen_direct(t, size)
     if size == "full":
         for key, (lo, hi) in {"vs_floor": (0.6, 0.8), "vs_polynomial": (0.6, 0.8), "vs_candidates": (0.85, 1.0),
                               "vs_frame_floor": (0.9, 1.0)}.items():
@@ -75,23 +75,30 @@ def check_zoo(t: Tables, size: str) -> None:
               "more cells are within 1.2x the floor in the commanded frame than within 1.2x the floor: the stage's share")
 
 
-def check_unchosen_direct(t: Tables) -> None:
+def check_unchosen_direct(t: Tables, size: str) -> None:
     """Section "Where the default loses", the line on a candidate below the floor in the commanded frame, not
-    chosen: each cell it names (the best candidate the direct model, below 0.9x that floor, the default more than
-    5 % above it) is a design whose positions hold several depths (a two-level plate or a stepped target), and
-    the default keeps the commanded frame there (within 1.05x its floor)."""
+    chosen: in each two-level cell where the best candidate is the direct model, below 0.9x that floor, and the
+    default more than 5 % above it, the default keeps the commanded frame (within 1.05x its floor) and the direct
+    model is within 1.1x the noise floor; at full size there is such a cell (README, Known limits: the Greenough
+    rig's two-level plate at two positions)."""
     errors, ratios = t("ext11_zoo_errors"), t("ext11_default_ratios").set_index(["rig", "design"])
     cand = errors[~errors["model"].isin(["floor", "frame floor", "auto"])]
     frame = errors[errors["model"] == "frame floor"].set_index(["rig", "design"])
-    for (rig, design), g in cand.groupby(["rig", "design"]):
+    floor = errors[errors["model"] == "floor"].set_index(["rig", "design"])
+    cells = 0
+    for (rig, design), g in cand[cand["design"].str.startswith("two-level")].groupby(["rig", "design"]):
         for c in "XYZ":
             best = g.loc[g[f"{c}_um"].idxmin()]
             if (best["model"] == "direct" and best[f"{c}_um"] < 0.9 * frame.loc[(rig, design), f"{c}_um"]
                     and ratios.loc[(rig, design), f"{c}_vs_candidates"] > 1.05):
-                claim(design.startswith(("two-level", "stepped")), "ext11_zoo_errors", f"{rig} {design} {c}",
-                      "the direct model below the floor in the commanded frame: positions holding several depths")
+                cells += 1
+                claim(best[f"{c}_um"] <= 1.1 * floor.loc[(rig, design), f"{c}_um"], "ext11_zoo_errors",
+                      f"{rig} {design} {c}", "the direct model within 1.1x the noise floor")
                 claim(ratios.loc[(rig, design), f"{c}_vs_frame_floor"] <= 1.05, "ext11_default_ratios",
                       f"{rig} {design} {c}", "the default keeps the commanded frame (within 1.05x its floor)")
+    if size == "full":
+        claim(cells > 0, "ext11_zoo_errors", "two-level", "a two-level cell where the direct model, not chosen, is "
+              "below the floor in the commanded frame (README, Known limits)")
 
 
 def check_stage_free(t: Tables, size: str) -> None:
