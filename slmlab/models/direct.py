@@ -70,7 +70,7 @@ from ..io import CalibrationSet, IMAGE_COLUMNS
 from ..linefit import point_keys
 from .base import Model, register
 from .folds import row_folds, thin_dots
-from .frames import distinct_levels, plate_xy, world_positions
+from .frames import distinct_levels, levels, plate_xy, world_positions
 
 __all__ = ["features", "fit_direct", "fit_frame", "check_options", "DirectModel", "LEGACY_FRAME", "DEGREE_ROWS",
            "DEPTH_DEGREE"]
@@ -480,7 +480,7 @@ def _depth_cap(target: np.ndarray, positions: np.ndarray, mode: str, max_degree:
     if mode not in ("target", "zstack"):
         return max_degree + 1
     depths = distinct_levels(target)
-    several = pd.Series(np.round(target[:, 2], 6)).groupby(np.asarray(positions)).nunique().max() > 1
+    several = pd.Series(levels(target)).groupby(np.asarray(positions)).nunique().max() > 1
     return min(depths, DEPTH_DEGREE + 1) if several else depths
 
 

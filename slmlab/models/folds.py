@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 from .base import get_model_class
-from .frames import world_positions
+from .frames import levels, world_positions
 
 __all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
            "end_planes", "planes_held_out", "fold_description", "position_keys", "held_out_errors", "per_position_offsets",
@@ -179,15 +179,15 @@ def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarra
     of the images, to second order), but the same inputs for every model: where two models that both fit the
     calibrated depths disagree there, one of them bends between the depths in a way nothing measured."""
     w = pts[IMAGE_COLUMNS].to_numpy(float)
-    z = np.round(world[:, 2], 6)
-    levels = np.unique(z)
+    z = levels(world)
+    depths = np.unique(z)
     out = []
-    for k, (lo, hi) in enumerate(zip(levels[:-1], levels[1:])):
+    for k, (lo, hi) in enumerate(zip(depths[:-1], depths[1:])):
         a, b = z == lo, z == hi
         d, j = cKDTree(world[b, :2]).query(world[a, :2])
         near = d <= 1.5 * np.median(d) + 1e-12
         wa, wb = w[a][near], w[b][j[near]]
-        ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(levels) - 2 else [])
+        ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(depths) - 2 else [])
         out += [wa + t * (wb - wa) for t in ts]
     return np.vstack(out) if out else np.empty((0, 4))
 

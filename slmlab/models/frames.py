@@ -23,7 +23,7 @@ from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 
-__all__ = ["SEQUENCES", "STAGE", "plate_xy", "world_positions", "distinct_levels", "check_axes", "dot_labels"]
+__all__ = ["SEQUENCES", "STAGE", "plate_xy", "world_positions", "levels", "distinct_levels", "check_axes", "dot_labels"]
 
 #: sequences whose stage positions are commanded moves
 SEQUENCES = STAGE_SEQUENCES
@@ -109,10 +109,16 @@ def _moving_rows(sequence, seen, position, stage) -> tuple[np.ndarray, bool]:
     return rows, lateral
 
 
+def levels(world: np.ndarray, axis: int = 2) -> np.ndarray:
+    """Coordinate ``axis`` of world positions ``(n, 3)`` [mm] to 1 nm, one per row: each dot's depth by default,
+    equal where two dots lie at the same depth."""
+    return np.round(np.asarray(world)[:, axis], 6)
+
+
 def distinct_levels(world: np.ndarray, axis: int = 2) -> int:
-    """How many distinct values (to 1 nm) coordinate ``axis`` of world positions ``(n, 3)`` [mm] takes: a
+    """How many distinct values (:func:`levels`) coordinate ``axis`` of world positions ``(n, 3)`` [mm] takes: a
     stack's depths by default, a lattice's columns or rows with ``axis`` 0 or 1."""
-    return len(np.unique(np.round(np.asarray(world)[:, axis], 6)))
+    return len(np.unique(levels(world, axis)))
 
 
 def check_axes(world: np.ndarray, mode: str, path=None) -> None:
