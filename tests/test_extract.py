@@ -199,17 +199,20 @@ def test_window_streaks_do_not_hide_the_dots():
     assert len(merged) == len(dots.table) >= 0.85 * len(truth), dots.note
     assert np.hypot(merged["w1_x"] - merged["w1_y"], merged["w2_x"] - merged["w2_y"]).max() < 1.0
 # ------------------------------------------------------------------------------------------ uneven backgrounds
-def _synthetic_plate(n=5, pitch=60, radius=12.0, blur=1.5, size=360, seed=0):
-    """Dark-dot coverage ``(size, size)`` of an ``n × n`` plate (dots of ``radius`` [px], Gaussian ``blur``
-    [px], centres jittered by up to half a pixel) and the true centres ``(n², 2)`` [px]."""
+def _synthetic_plate(n=5, pitch=60, radius=12.0, blur=1.5, size=360, seed=0, aspect=1.0, angle_deg=0.0):
+    """Dark-dot coverage ``(size, size)`` of an ``n × n`` plate (dots of ``radius`` [px], squeezed to ellipses
+    of axis ratio ``aspect`` turned by ``angle_deg``, Gaussian ``blur`` [px], centres jittered by up to half a
+    pixel) and the true centres ``(n², 2)`` [px]."""
     rng = np.random.default_rng(seed)
     c = (size - (n - 1) * pitch) / 2 + np.arange(n) * pitch
     xy = np.array([(x, y) for y in c for x in c]) + rng.uniform(-0.5, 0.5, (n * n, 2))
     k = 8
     yy, xx = (np.mgrid[0:size * k, 0:size * k] + 0.5) / k - 0.5
+    cos, sin = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
     cov = np.zeros((size * k, size * k), np.float32)
     for x, y in xy:
-        cov[(xx - x) ** 2 + (yy - y) ** 2 <= radius ** 2] = 1
+        along, across = cos * (xx - x) + sin * (yy - y), -sin * (xx - x) + cos * (yy - y)
+        cov[(along / aspect) ** 2 + across ** 2 <= radius ** 2] = 1
     cov = cv2.GaussianBlur(cv2.resize(cov, (size, size), interpolation=cv2.INTER_AREA), (0, 0), blur)
     return xy, cov, rng
 
@@ -251,6 +254,58 @@ def test_window_streaks_are_flat_fielded_column_by_column():
     assert _rms(refine_fit(img, start, radii, reach=reach, columns=False), xy) > 0.2
     assert _rms(refine(img, start, radii, dark=True, method="edges"), xy) < 0.05
     assert _rms(refine(img, start, radii, dark=True, method="fit"), xy) < 0.02
+
+
+def _exposed(cov, contrast, noise, seed):
+    """An 8-bit image of dark-dot coverage ``cov`` at ``contrast`` on a level of 150 with white ``noise``
+    [grey levels]."""
+    rng = np.random.default_rng(seed)
+    return np.clip(np.rint(150 * (1 - contrast * cov) + rng.normal(0, noise, cov.shape)), 0, 255).astype(np.uint8)
+
+
+def test_symmetry_centres_oblique_blurred_dots_exactly():
+    """Noise-free oblique dots (ellipses 0.6 : 1, turned 30°, blurred): the point of symmetry is the centre
+    to 0.005 px RMS, with no model of the dot's shape (the bilinear samples are exact: cv2.remap's 1/32 px
+    fractions alone left 0.01 px)."""
+    from slmlab.images.centres import refine
+    xy, cov, _ = _synthetic_plate(aspect=0.6, angle_deg=30)
+    img = (150 * (1 - 0.7 * cov)).astype(np.float32)
+    radii = np.full(len(xy), 12.0 * np.sqrt(0.6))
+    assert _rms(refine(img, xy + 0.7, radii, dark=True, method="symmetry"), xy) < 0.005
+
+
+@pytest.mark.parametrize("aspect, angle_deg", [(1.0, 0.0), (0.6, 30.0)])
+def test_symmetry_is_the_least_noisy_where_noise_limits(aspect, angle_deg):
+    """Low contrast (15 %) in read noise of 3 grey levels, four noise draws: the point of symmetry, which
+    weights every pixel by its slope, is at least 20 % closer to the truth than the centroid (moments) and
+    closer than the edges' outline."""
+    from slmlab.images.centres import refine
+    xy, cov, _ = _synthetic_plate(aspect=aspect, angle_deg=angle_deg)
+    radii, start = np.full(len(xy), 12.0 * np.sqrt(aspect)), xy + 0.7
+    err = {m: [] for m in ("moments", "edges", "symmetry")}
+    for seed in range(4):
+        img = _exposed(cov, 0.15, 3.0, seed)
+        for m in err:
+            err[m].append(_rms(refine(img, start, radii, dark=True, method=m), xy))
+    rms = {m: float(np.sqrt(np.mean(np.square(e)))) for m, e in err.items()}
+    assert rms["symmetry"] < 0.8 * rms["moments"] and rms["symmetry"] < rms["edges"], rms
+
+
+def test_auto_takes_the_smoother_of_the_whole_dot_estimators():
+    """choose_method's rule: among the estimators that keep the most dots, the smoother on the lattice of
+    moments and symmetry, unless an edge estimator is below AUTO_EDGE_RATIO of the moments' or the moments
+    lost dots (textured dots), or the fit (where tried) below AUTO_FIT_RATIO of the best other."""
+    from slmlab.images.extract import AUTO_EDGE_RATIO, _best_method
+    kept = dict.fromkeys(("moments", "ellipse", "edges", "symmetry"), 49)
+    res = {"moments": 0.03, "ellipse": 0.04, "edges": 0.035, "symmetry": 0.02}
+    assert _best_method(kept, res) == "symmetry"
+    assert _best_method(kept, {**res, "symmetry": 0.031}) == "moments"
+    assert _best_method(kept, {**res, "edges": 0.99 * AUTO_EDGE_RATIO * 0.03}) == "edges"   # textured
+    assert _best_method(kept, {**res, "edges": 1.01 * AUTO_EDGE_RATIO * 0.03}) == "symmetry"
+    assert _best_method({**kept, "symmetry": 48}, res) == "moments"          # it lost a dot off the lattice
+    assert _best_method({**kept, "moments": 48}, res) == "edges"             # a centroid pulled off: texture
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": 0.019}) == "fit"
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": float("nan")}) == "symmetry"
 
 
 def test_an_even_background_is_neither_saturated_nor_streaky():

@@ -157,6 +157,20 @@ def test_case_e_images_meet_the_extraction_targets(case_e, piv):
     assert any("square and triangle" in n for n in notes)
 
 
+def test_case_e_dots_are_textured_so_auto_takes_an_edge_fit(case_e):
+    """The case E dots are scratched and unevenly lit (notebook 10): on each view's first image the centroid's
+    centres lie most roughly on the lattice, the point of symmetry's less, the edge fit's least; auto takes
+    the edge fit (below AUTO_EDGE_RATIO of the centroid's)."""
+    import re
+    _, _, notes = case_e
+    chosen = [n for n in notes if "centres by " in n]
+    assert len(chosen) == 2, notes
+    for note in chosen:
+        res = {m: float(v) for v, m in re.findall(r"([0-9.]+) px by (\w+)", note)}
+        assert note.split("centres by ")[1].startswith("edges"), note
+        assert res["edges"] < res["symmetry"] < res["moments"], note
+
+
 def test_case_e_numbering_is_one_across_the_stack_and_both_views(case_e):
     _, pts, _ = case_e
     # each dot's track through the stack is a straight line in each view: a misnumbered image would jump a pitch

@@ -42,8 +42,9 @@ IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\
 
 
 #: ``method="auto"`` takes an edge estimator (``ellipse`` or ``edges``) only where its centres lie this much
-#: more smoothly on the lattice than the moments' (real, textured dots); otherwise moments, the more
-#: precise on uniform dots far out of focus
+#: more smoothly on the lattice than the moments' (real, textured dots, whose texture pulls a centroid and a
+#: point of symmetry alike; PIV Challenge case E: 0.28 and 0.46); otherwise the smoother of moments and
+#: symmetry, the more precise on uniform dots (symmetry where noise limits, moments far out of focus)
 AUTO_EDGE_RATIO = 0.7
 #: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
 #: (:func:`slmlab.images.centres.uneven_background`), where its centres lie this much more smoothly on the
@@ -551,7 +552,8 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
     ``fit``, tried only on an image with saturation or streaks around the dots
     (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
     other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
-    :data:`AUTO_EDGE_RATIO` times the moments' residual, else ``moments``. ``kw``: :func:`extract_image`'s
+    :data:`AUTO_EDGE_RATIO` times the moments' residual or the moments lost dots (textured dots), else the
+    smoother of ``moments`` and ``symmetry``. ``kw``: :func:`extract_image`'s
     keywords. Returns the method, the residual [px] of each estimator tried and the image's dots by the method
     chosen (:func:`extract_image`'s result, from the same search)."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
@@ -571,18 +573,20 @@ def _best_method(kept_dots: dict, res: dict) -> str:
     """:func:`choose_method`'s rule on each estimator's kept dots and lattice residual [px]."""
     most = max(kept_dots.values())
     kept = [m for m in kept_dots if kept_dots[m] == most]      # an estimator whose centres leave the lattice
-    others = [res[m] for m in kept if m != "fit" and np.isfinite(res[m])]
-    if "fit" in kept and np.isfinite(res["fit"]) and (not others or res["fit"] < AUTO_FIT_RATIO * min(others)):
+    score = {m: res[m] if np.isfinite(res[m]) else np.inf for m in kept}
+    others = [score[m] for m in kept if m != "fit"]
+    if "fit" in kept and np.isfinite(score["fit"]) and (not others or score["fit"] < AUTO_FIT_RATIO * min(others)):
         return "fit"
     kept = [m for m in kept if m != "fit"]
     if not kept:
         return "fit"
-    edge = min((m for m in ("ellipse", "edges") if m in kept), key=lambda m: res[m] if np.isfinite(res[m]) else np.inf,
-               default=None)
-    if "moments" not in kept:
-        return edge
-    ok = edge is not None and np.isfinite(res[edge]) and np.isfinite(res["moments"])
-    return edge if ok and res[edge] < AUTO_EDGE_RATIO * res["moments"] else "moments"
+    whole = min((m for m in ("moments", "symmetry") if m in kept), key=score.get, default=None)
+    edge = min((m for m in ("ellipse", "edges") if m in kept), key=score.get, default=None)
+    if whole is None or edge is None:
+        return whole or edge
+    # textured dots (or streaks across them) pull a centroid off the lattice, or make it rougher than the outline
+    textured = "moments" not in kept or score[edge] < AUTO_EDGE_RATIO * score["moments"]
+    return edge if textured else whole
 
 
 def extract_stereo_pairs(pairs: list[tuple[Path, Path]], rows: int, cols: int, *, anchor: str = "markers") -> pd.DataFrame:
