@@ -17,17 +17,19 @@ def check(t: Tables, size: str) -> None:
               "every visible dot found and numbered, none misnumbered")
         claim(a.loc[m, "rms_in_focus_px"] <= TARGETS_PX[0] and a.loc[m, "rms_depth_of_field_px"] <= TARGETS_PX[1], name, m,
               "within the targets: 0.03 px in focus, 0.05 px over the depth of field")
-    claim(a.drop(index="fit", errors="ignore")["rms_depth_of_field_px"].idxmin() == "moments", name, "moments",
-          "of the fast estimators the centroid is the better one over the depth of field")
-    if "fit" in a.index:
-        claim(a["rms_depth_of_field_px"].idxmin() == "fit", name, "fit",
-              "the model fit of the blurred dot is the best over the depth of field")
+    dof = a["rms_depth_of_field_px"]
+    claim(dof["symmetry"] < dof["moments"] < dof[["ellipse", "edges"]].min(), name, "symmetry, moments",
+          "over the depth of field the point of symmetry is better than the centroid, the centroid than the edge fits")
+    claim(dof.idxmin() in ("symmetry", "fit"), name, dof.idxmin(),
+          "the best over the depth of field weights every pixel by its slope (the point of symmetry or the model fit)")
 
     name = "ext02_extraction_error_by_depth"
     d = t(name)
     edge = d[d["z_bin_mm"].abs() == d["z_bin_mm"].abs().max()].groupby("method")["rms_px"].mean()
     claim(edge["ellipse"] > 1.5 * edge["moments"], name, "the ends of the Z sweep",
           "far out of focus the edge-based ellipse is much worse than the centroid")
+    claim(edge[["ellipse", "edges"]].min() > edge[["moments", "symmetry"]].max(), name, "the ends of the Z sweep",
+          "far out of focus the centroid and the point of symmetry degrade less than the edge-based estimators")
 
     name = "ext02_distortion_quality"
     q = t(name).set_index(["centres", "view", "stage"])
