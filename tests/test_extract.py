@@ -295,7 +295,7 @@ def test_auto_takes_the_smoother_of_the_whole_dot_estimators():
     """choose_method's rule: among the estimators that keep the most dots, the smoother on the lattice of
     moments and symmetry, unless an edge estimator is below AUTO_EDGE_RATIO of the moments' or the moments
     lost dots (textured dots), or the fit (where tried) below AUTO_FIT_RATIO of the best other."""
-    from slmlab.images.extract import AUTO_EDGE_RATIO, _best_method
+    from slmlab.images.extract import AUTO_EDGE_RATIO, AUTO_FIT_RATIO, _best_method
     kept = dict.fromkeys(("moments", "ellipse", "edges", "symmetry"), 49)
     res = {"moments": 0.03, "ellipse": 0.04, "edges": 0.035, "symmetry": 0.02}
     assert _best_method(kept, res) == "symmetry"
@@ -304,8 +304,15 @@ def test_auto_takes_the_smoother_of_the_whole_dot_estimators():
     assert _best_method(kept, {**res, "edges": 1.01 * AUTO_EDGE_RATIO * 0.03}) == "symmetry"
     assert _best_method({**kept, "symmetry": 48}, res) == "moments"          # it lost a dot off the lattice
     assert _best_method({**kept, "moments": 48}, res) == "edges"             # a centroid pulled off: texture
-    assert _best_method({**kept, "fit": 49}, {**res, "fit": 0.019}) == "fit"
+    assert _best_method(kept, {**res, "moments": float("nan")}) == "edges"  # no centroid to judge texture by
+    only_whole = {"moments": 49, "symmetry": 49, "ellipse": 40, "edges": 40}
+    assert _best_method(only_whole, {**res, "edges": 0.001}) == "symmetry"
+    only_edges = {"moments": 40, "symmetry": 40, "ellipse": 49, "edges": 49}
+    assert _best_method(only_edges, res) == "edges"
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": 0.99 * AUTO_FIT_RATIO * 0.02}) == "fit"
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": 1.01 * AUTO_FIT_RATIO * 0.02}) == "symmetry"
     assert _best_method({**kept, "fit": 49}, {**res, "fit": float("nan")}) == "symmetry"
+    assert _best_method({"fit": 49, "moments": 40}, {**res, "fit": 0.05}) == "fit"     # alone on the lattice
 
 
 def test_an_even_background_is_neither_saturated_nor_streaky():

@@ -3,7 +3,7 @@
 ``dots``
     finding a plate's dots: a threshold sweep over the local contrast, markers, hot pixels, the local search;
 ``centres``
-    their sub-pixel centres (``moments``, ``ellipse``, ``edges``, ``fit``);
+    their sub-pixel centres (``moments``, ``ellipse``, ``edges``, ``fit``, ``symmetry``);
 ``lattice``
     numbering them on the plate's fitted lattice (its size, or its markers);
 ``extract``

@@ -171,16 +171,23 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5  # the window never reaches beyond (|c - base| <= 0.5)
     ox, oy = flat.ox[disk], flat.oy[disk]
     con = flat.contrast[:, disk]
-    # float32 is ample here: sums of a few thousand terms of size <= reach, relative error ~1e-6 px
     for _ in range(iterations):
-        f = (c - flat.base).astype(np.float32)
-        win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
-                      0.0, 1.0)
-        w = con * win
-        s = w.sum(axis=1, dtype=np.float64)
-        s = np.where(np.abs(s) > 1e-9, s, 1e-9)
-        c = flat.base + np.column_stack([w @ ox, w @ oy]).astype(np.float64) / s[:, None]
+        c = flat.base + _centroid(con, ox, oy, c - flat.base, reach)
     return c
+
+
+def _centroid(con: np.ndarray, ox: np.ndarray, oy: np.ndarray, f: np.ndarray, reach: float) -> np.ndarray:
+    """One centroid step of :func:`refine_moments`: the centroid ``(n, 2)`` [px from each patch's centre pixel]
+    of contrasts ``con`` ``(n, P)`` at pixel offsets ``ox, oy`` ``(P,)`` within an anti-aliased disk of radius
+    ``reach + 0.5`` [px] around ``f`` ``(n, 2)``. float32 is ample here: sums of a few thousand terms of size
+    <= reach, relative error ~1e-6 px."""
+    f = f.astype(np.float32)
+    win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
+                  0.0, 1.0)
+    w = con * win
+    s = w.sum(axis=1, dtype=np.float64)
+    s = np.where(np.abs(s) > 1e-9, s, 1e-9)
+    return np.column_stack([w @ ox, w @ oy]).astype(np.float64) / s[:, None]
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -605,7 +612,7 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
 
 def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
     """``A(f + u) − A(f − u)`` ``(n, P)`` of patches ``stack`` ``(n, S, S)`` (``A`` bilinear), ``f`` ``(n, 2)`` [px
-    from each patch's centre pixel, within ``S // 2 - max|u| - 1``], ``u = (ux, uy)`` ``(P,)`` whole pixels:
+    from each patch's centre pixel, within ``S // 2 - max|u| - 2``], ``u = (ux, uy)`` ``(P,)`` whole pixels:
     each patch shifted once by its fraction of a pixel, then read at whole pixels. Exact in float arithmetic
     (``cv2.remap`` rounds the fraction to 1/32 px, a 0.01 px floor for a centre estimator)."""
     n, s, _ = stack.shape
@@ -632,32 +639,36 @@ def _half_disk(reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
                     iterations: int = 4, reach: float | None = None, columns: bool = False) -> np.ndarray:
-    """Sub-pixel centres as the points of symmetry of the flat-fielded contrast: ``c`` minimises
-    ``Σ_u w(u) [C(c + u) − C(c − u)]²`` over the pixel offsets ``u`` of a disk reaching as far as the dots'
-    blur (:func:`dot_reach`), by Gauss-Newton (the Jacobian from the patches' gradients, bilinear samples).
+    """Sub-pixel centres as the points of symmetry of the flat-fielded contrast ``C``: Gauss-Newton on
+    ``Σ_u w(u) r(u)²``, ``r(u) = C(c + u) − C(c − u)``, over the pixel offsets ``u`` of a disk reaching as far as
+    the dots' blur (:func:`dot_reach`), bilinear samples, the Jacobian from the patches' gradients.
 
     A dot seen through a lens, round or oblique, sharp or blurred, is point-symmetric about its centre to
     first order; no model of its shape or profile is assumed. Every pixel of the dot and its blur counts,
-    weighted by the local slope, so in white noise the estimate reaches the Cramér-Rao bound of a symmetric
-    target (the centroid of :func:`refine_moments` weights the flat inside as much as the edge and so is
-    noisier at low contrast). From one centroid step (:func:`_centroid`): up to ``iterations`` steps with the
-    Jacobian at each estimate, until the centre moves less than 0.1 px; then up to as many with the last
-    Jacobian kept (where the asymmetry vanishes does not depend on it, and each step is three times cheaper),
-    until it moves less than 0.001 px. Not weighted robustly: Tukey's biweight on the asymmetries set a hot
+    weighted by the local slope, so in white noise it comes near the Cramér-Rao bound of a symmetric target,
+    where the centroid of :func:`refine_moments`, which weights the flat inside as much as the edge, does not
+    (at low contrast in noise, 20-40 % nearer the truth: ``tests/test_extract.py``). From one centroid step:
+    steps with the Jacobian at each estimate until no centre moves more than 0.1 px (at most ``iterations``),
+    then at most as many with the last Jacobian kept (each three times cheaper; where the asymmetry vanishes
+    does not depend on it, and in noise a Jacobian 0.1 px old moves the centre by far less than the noise),
+    until none moves more than 0.001 px. Not weighted robustly: Tukey's biweight on the asymmetries set a hot
     pixel aside, but where the blurred dot itself is not quite symmetric (a Scheimpflug view) it moved the
     centre by 0.005 px more than it helped. The contrast ``1 − I/B`` is flat-fielded as in
-    :func:`refine_moments`; the image's §3 dot centres feed the paper's line fitting and Eqs. (1)–(3).
-    Returns ``(n, 2)`` [px].
+    :func:`refine_moments`; the image's §3 dot centres feed the paper's line fitting and Eqs. (1)–(3). A dot
+    whose patch holds a non-finite pixel gets NaN. Returns ``(n, 2)`` [px].
     """
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
     flat, reach = flat_patches(img, c, radii, dark, reach, columns)
-    con = flat.contrast.astype(np.float32)
+    bad = ~np.isfinite(flat.contrast).all(axis=(1, 2))             # a NaN pixel: that dot's centre is NaN
+    con = np.where(bad[:, None, None], np.float32(0), flat.contrast)
     grad = np.gradient(con, axis=(2, 1))
     ux, uy, w = _half_disk(reach)
     room = con.shape[1] // 2 - int(np.ceil(reach + 1)) - 1        # how far a centre may move inside its patch
-    f = np.clip(_centroid(con, c - flat.base, reach), -room, room)     # nearer than the detection's centre
+    n = len(c)
+    f = _centroid(con.reshape(n, -1), flat.ox.ravel(), flat.oy.ravel(), c - flat.base, reach)
+    f = np.clip(f, -room, room)                                   # one centroid step: nearer than the detection's
     for _ in range(iterations):                       # Gauss-Newton, the Jacobian at each estimate
         step, jac = _symmetry_step(con, grad, f, ux, uy, w, None)
         f = np.clip(f + step, -room, room)
@@ -668,23 +679,11 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() < 1e-3:
             break
-    return flat.base + f
+    return np.where(bad[:, None], np.nan, flat.base + f)
 
 
-def _centroid(con: np.ndarray, f: np.ndarray, reach: float) -> np.ndarray:
-    """One step of :func:`refine_moments` on contrast patches ``con`` ``(n, S, S)``: the centroid ``(n, 2)`` [px
-    from each patch's centre pixel] within ``reach + 0.5`` of ``f``."""
-    h = con.shape[1] // 2
-    off = np.arange(-h, h + 1, dtype=np.float32)
-    dx = off[None, None, :] - f[:, 0, None, None].astype(np.float32)
-    dy = off[None, :, None] - f[:, 1, None, None].astype(np.float32)
-    weight = con * np.clip(np.float32(reach + 0.5) - np.hypot(dx, dy), 0.0, 1.0)
-    total = weight.sum(axis=(1, 2), dtype=np.float64)
-    total = np.where(np.abs(total) > 1e-9, total, 1e-9)
-    return np.column_stack([weight.sum(axis=1) @ off, weight.sum(axis=2) @ off]) / total[:, None]
-
-
-def _symmetry_step(con, grad, f, ux, uy, w, jac):
+def _symmetry_step(con: np.ndarray, grad: tuple, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, w: np.ndarray,
+                   jac: tuple | None) -> tuple[np.ndarray, tuple]:
     """One Gauss-Newton step ``(n, 2)`` [px] of :func:`refine_symmetry` from patch offsets ``f`` ``(n, 2)``,
     and the Jacobian used (computed from the gradients ``grad`` unless ``jac`` is given)."""
     r = _asymmetry(con, f, ux, uy)
