@@ -610,11 +610,13 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     return np.where(ok[:, None], base + theta[:, :2], start)
 
 
-def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
-    """``A(f + u) − A(f − u)`` ``(n, P)`` of patches ``stack`` ``(n, S, S)`` (``A`` bilinear), ``f`` ``(n, 2)`` [px
-    from each patch's centre pixel, within ``S // 2 - max|u| - 2``], ``u = (ux, uy)`` ``(P,)`` whole pixels:
-    each patch shifted once by its fraction of a pixel, then read at whole pixels. Exact in float arithmetic
-    (``cv2.remap`` rounds the fraction to 1/32 px, a 0.01 px floor for a centre estimator)."""
+def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, jacobian: bool = False):
+    """``r(u) = A(f + u) − A(f − u)`` ``(n, P)`` of patches ``stack`` ``(n, S, S)`` (``A`` bilinear), ``f``
+    ``(n, 2)`` [px from each patch's centre pixel, within ``S // 2 - max|u| - 2``], ``u = (ux, uy)`` ``(P,)``
+    whole pixels: each patch shifted once by its fraction of a pixel, then read at whole pixels. Exact in float
+    arithmetic (``cv2.remap`` rounds the fraction to 1/32 px, a 0.01 px floor for a centre estimator). With
+    ``jacobian``, also ``∂r/∂f`` along x and y: central differences of the shifted patch, which are the
+    patch's central differences shifted the same way."""
     n, s, _ = stack.shape
     whole = np.floor(f)
     t = (f - whole).astype(stack.dtype)
@@ -622,9 +624,14 @@ def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray)
     rows = stack[:, :, :-1] + tx * (stack[:, :, 1:] - stack[:, :, :-1])
     shifted = (rows[:, :-1] + ty * (rows[:, 1:] - rows[:, :-1])).reshape(-1)
     k = whole.astype(np.int64) + s // 2
-    at = (np.arange(n) * (s - 1) + k[:, 1]) * (s - 1) + k[:, 0]
-    off = (uy.astype(np.int64) * (s - 1) + ux.astype(np.int64))
-    return shifted[at[:, None] + off] - shifted[at[:, None] - off]
+    at = ((np.arange(n) * (s - 1) + k[:, 1]) * (s - 1) + k[:, 0])[:, None]
+    off = uy.astype(np.int64) * (s - 1) + ux.astype(np.int64)
+    r = shifted[at + off] - shifted[at - off]
+    if not jacobian:
+        return r
+    jac = tuple(0.5 * (shifted[at + off + e] - shifted[at + off - e] - shifted[at - off + e] + shifted[at - off - e])
+                for e in (1, s - 1))
+    return r, jac
 
 
 def _half_disk(reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -641,7 +648,7 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
                     iterations: int = 4, reach: float | None = None, columns: bool = False) -> np.ndarray:
     """Sub-pixel centres as the points of symmetry of the flat-fielded contrast ``C``: Gauss-Newton on
     ``Σ_u w(u) r(u)²``, ``r(u) = C(c + u) − C(c − u)``, over the pixel offsets ``u`` of a disk reaching as far as
-    the dots' blur (:func:`dot_reach`), bilinear samples, the Jacobian from the patches' gradients.
+    the dots' blur (:func:`dot_reach`), bilinear samples, the Jacobian from their central differences.
 
     A dot seen through a lens, round or oblique, sharp or blurred, is point-symmetric about its centre to
     first order; no model of its shape or profile is assumed. Every pixel of the dot and its blur counts,
@@ -663,32 +670,32 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
     flat, reach = flat_patches(img, c, radii, dark, reach, columns)
     bad = ~np.isfinite(flat.contrast).all(axis=(1, 2))             # a NaN pixel: that dot's centre is NaN
     con = np.where(bad[:, None, None], np.float32(0), flat.contrast)
-    grad = np.gradient(con, axis=(2, 1))
     ux, uy, w = _half_disk(reach)
     room = con.shape[1] // 2 - int(np.ceil(reach + 1)) - 1        # how far a centre may move inside its patch
-    n = len(c)
-    f = _centroid(con.reshape(n, -1), flat.ox.ravel(), flat.oy.ravel(), c - flat.base, reach)
+    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5
+    f = _centroid(con[:, disk], flat.ox[disk], flat.oy[disk], c - flat.base, reach)
     f = np.clip(f, -room, room)                                   # one centroid step: nearer than the detection's
     for _ in range(iterations):                       # Gauss-Newton, the Jacobian at each estimate
-        step, jac = _symmetry_step(con, grad, f, ux, uy, w, None)
+        step, jac = _symmetry_step(con, f, ux, uy, w, None)
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() <= 0.1:
             break
     for _ in range(iterations):                       # the last Jacobian kept: where r = 0 does not change
-        step, _ = _symmetry_step(con, grad, f, ux, uy, w, jac)
+        step, _ = _symmetry_step(con, f, ux, uy, w, jac)
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() < 1e-3:
             break
     return np.where(bad[:, None], np.nan, flat.base + f)
 
 
-def _symmetry_step(con: np.ndarray, grad: tuple, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, w: np.ndarray,
+def _symmetry_step(con: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, w: np.ndarray,
                    jac: tuple | None) -> tuple[np.ndarray, tuple]:
     """One Gauss-Newton step ``(n, 2)`` [px] of :func:`refine_symmetry` from patch offsets ``f`` ``(n, 2)``,
-    and the Jacobian used (computed from the gradients ``grad`` unless ``jac`` is given)."""
-    r = _asymmetry(con, f, ux, uy)
+    and the Jacobian used (at ``f`` unless ``jac`` is given)."""
     if jac is None:
-        jac = tuple(_asymmetry(g, f, ux, uy) for g in grad)
+        r, jac = _asymmetry(con, f, ux, uy, jacobian=True)
+    else:
+        r = _asymmetry(con, f, ux, uy)
     jx, jy = jac
     a11, a12, a22 = (w * jx * jx).sum(1), (w * jx * jy).sum(1), (w * jy * jy).sum(1)
     b1, b2 = (w * jx * r).sum(1), (w * jy * r).sum(1)
