@@ -315,6 +315,30 @@ def test_auto_takes_the_smoother_of_the_whole_dot_estimators():
     assert _best_method({"fit": 49, "moments": 40}, {**res, "fit": 0.05}) == "fit"     # alone on the lattice
 
 
+def test_auto_lets_the_fit_lose_one_dot_and_compares_on_the_common_dots():
+    """The fit one dot short still competes, its residual and the others' taken on the dots all kept (a lost
+    dot would otherwise make it look smoother); two dots short, or another estimator one short, do not."""
+    from slmlab.images.extract import AUTO_FIT_SLACK, _kept_and_residuals
+    rng = np.random.default_rng(0)
+    i1, i2 = np.meshgrid(np.arange(7), np.arange(7))
+    grid = pd.DataFrame({"i1": i1.ravel(), "i2": i2.ravel(), "level": 0})
+    def table(scatter, drop=()):
+        t = grid.assign(w1=30.0 * grid["i1"] + rng.normal(0, scatter, 49), w2=30.0 * grid["i2"] + rng.normal(0, scatter, 49))
+        t.loc[list(drop), ["w1", "w2"]] += 3.0                      # dots pulled by a glare
+        return t
+    pulled = table(0.01, drop=[0, 1])                   # two dots beside a glare, pulled together
+    fit = table(0.01).drop(index=range(AUTO_FIT_SLACK))  # the fit places dot 1, loses dot 0
+    kept, res = _kept_and_residuals({"symmetry": pulled, "fit": fit})
+    assert kept == {"symmetry": 49, "fit": 49}
+    assert res["fit"] < 0.05 < res["symmetry"]           # dot 1 is among the common dots
+    alone = _kept_and_residuals({"symmetry": pulled.drop(index=0)})[1]["symmetry"]
+    assert res["symmetry"] == pytest.approx(alone)       # dot 0 is not: nobody is judged on a dot one lost
+    kept, _ = _kept_and_residuals({"symmetry": pulled, "fit": fit.iloc[1:]})
+    assert kept["fit"] == 48 - AUTO_FIT_SLACK
+    kept, _ = _kept_and_residuals({"symmetry": pulled.iloc[1:], "moments": pulled})
+    assert kept == {"symmetry": 48, "moments": 49}
+
+
 def test_an_even_background_is_neither_saturated_nor_streaky():
     """On a plate under even light (no pixel at full scale, no streaks) auto does not try the slow fit; a 12-bit
     image in 16 bits saturates at 4095, a 16-bit one below its full scale does not."""

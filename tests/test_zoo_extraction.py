@@ -76,20 +76,24 @@ def test_extraction_under_a_degradation_meets_the_targets(rig, degradation, rms_
 
 
 @pytest.mark.slow  # rigs drawn at random, none of them shaped on (seconds each)
-@pytest.mark.parametrize("rig, degradation", [
-    ("stereo-piv:6", "the rig's camera"), ("stereo-piv:7", "the rig's camera"), ("greenough:5", "the rig's camera"),
-    ("stereo-dic:5", "the rig's camera"), ("stereo-piv:4", "all together"),
+@pytest.mark.parametrize("rig, degradation, rms_px, method", [
+    ("stereo-piv:6", "the rig's camera", 0.05, None), ("stereo-piv:7", "the rig's camera", 0.05, None),
+    ("greenough:5", "the rig's camera", 0.05, "symmetry"), ("stereo-dic:5", "the rig's camera", 0.05, None),
+    ("greenough:5", "bright region", 0.05, "fit"), ("stereo-piv:4", "all together", None, None),
 ])
-def test_rigs_drawn_at_random_have_every_visible_dot_found_and_numbered(rig, degradation, tmp_path):
+def test_rigs_drawn_at_random_have_every_visible_dot_found_and_numbered(rig, degradation, rms_px, method, tmp_path):
     """Rigs drawn at random (seeds beyond notebook 11's 1-3): every visible dot found and none numbered wrongly,
-    and with each rig's own camera the centres within the 0.05 px target. greenough:5's camera sees its plate
-    far out of focus and at low contrast at the ends of its depth: 0.074 px by the centroid, 0.040 px by the
-    point of symmetry, which auto takes there. Everything together on stereo-piv:4 leaves 0.08 px (not held)."""
+    and the centres within the 0.05 px target. greenough:5's camera sees its plate far out of focus and at low
+    contrast at the ends of its depth: 0.074 px by the centroid, 0.040 px by the point of symmetry, which auto
+    takes there. Beside greenough:5's bright region the model fit is at 0.030 px, losing one dot in a saturated
+    surround; auto lets it compete with one dot fewer (AUTO_FIT_SLACK; without that it took the point of
+    symmetry, 0.16 px: three dots beside the glare 1.2-1.4 px off). Everything together on stereo-piv:4 leaves
+    0.08 px (not held)."""
     row = extraction_by_degradation([rig_by_name(rig)], [degradation], folder=tmp_path).iloc[0]
     assert row["note"] == "" and row["visible_dots"] > 0
     assert row["found_percent"] >= 99 and row["misnumbered"] == 0, row.to_dict()
-    assert degradation != "the rig's camera" or row["rms_px"] <= 0.05, row.to_dict()
-    assert rig != "greenough:5" or row["method"] == "symmetry", row.to_dict()
+    assert rms_px is None or row["rms_px"] <= rms_px, row.to_dict()
+    assert method is None or row["method"] == method, row.to_dict()
 
 
 def test_a_plate_cut_by_a_glare_is_numbered_alone_or_not_at_all(tmp_path):

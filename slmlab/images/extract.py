@@ -34,7 +34,7 @@ from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contras
 from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
                       number_plate, origin_frame, plate_lattice, robust_model)
 
-__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table",
+__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table",
            "extract_image", "extract_image_methods", "choose_method", "report_summary", "extract_stereo_pairs"]
 
 
@@ -55,6 +55,12 @@ AUTO_EDGE_RATIO = 0.7
 #: seed 1 it was 0.72-0.99 of the others', and as accurate as they or more in every cell it was taken in, seeds
 #: 1 and 2; elsewhere it is not tried: the others are about as good there and tens of times faster)
 AUTO_FIT_RATIO = 1.0
+#: ``method="auto"`` lets the model ``fit`` lose this many dots and still compete (its residual then taken on
+#: the dots every competitor kept): it censors saturated pixels, and a dot whose whole surround is saturated
+#: leaves it too few to place the dot, which it then drops; a glare that pulls a group of dots together does not
+#: take them off the lattice for the others (greenough:5's bright region: the fit 0.030 px RMS with one dot
+#: lost in 196, the others 1.2-1.4 px off on the three dots beside the glare)
+AUTO_FIT_SLACK = 1
 #: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
 #: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
 OFF_LATTICE_PX = 0.25
@@ -551,7 +557,8 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
 def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict, ImageDots]:
     """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
     refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
-    glare or a streak loses dots), compared by :func:`slmlab.images.lattice.lattice_residual_px`: the model
+    glare or a streak loses dots; the fit may lose :data:`AUTO_FIT_SLACK`), compared by
+    :func:`slmlab.images.lattice.lattice_residual_px` on the dots all of them kept: the model
     ``fit``, tried only on an image with saturation or streaks around the dots
     (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
     other's residual; else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
@@ -567,9 +574,27 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dic
         return "moments", {m: float("nan") for m in METHODS}, _no_lattice(loc)
     uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)
     tabled = {m: _table(loc, m, anchoring["two_level"]) for m in METHODS if uneven or m != "fit"}
-    res = {m: lattice_residual_px(t[0]) for m, t in tabled.items()}
-    method = _best_method({m: len(t[0]) for m, t in tabled.items()}, res)
+    kept, res = _kept_and_residuals({m: t[0] for m, t in tabled.items()})
+    method = _best_method(kept, res)
     return method, res, _finish(loc, method, rows, cols, anchoring, kw.get("dot_diameter_px"), tabled[method])
+
+
+def _kept_and_residuals(tables: dict) -> tuple[dict, dict]:
+    """Each estimator's kept dots, as :func:`_best_method` counts them, and lattice residual [px]
+    (:func:`slmlab.images.lattice.lattice_residual_px`), from its table of dots. The model ``fit`` may lose
+    :data:`AUTO_FIT_SLACK` dots and still count as keeping the most; the residuals of those that keep the most
+    are then taken on the dots all of them kept, so that a lost dot does not make an estimator look smoother."""
+    kept = {m: len(t) for m, t in tables.items()}
+    most = max(kept.values())
+    if "fit" in kept and most - AUTO_FIT_SLACK <= kept["fit"] < most:
+        kept["fit"] = most
+    keys = {m: set(zip(t["i1"], t["i2"])) for m, t in tables.items()}
+    common = set.intersection(*(keys[m] for m in kept if kept[m] == most))
+    res = {}
+    for m, t in tables.items():
+        on = [k in common for k in zip(t["i1"], t["i2"])] if kept[m] == most else slice(None)
+        res[m] = lattice_residual_px(t[on])
+    return kept, res
 
 
 def _best_method(kept_dots: dict, res: dict) -> str:
