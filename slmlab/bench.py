@@ -180,9 +180,9 @@ def _bench_zoo_extract() -> list[BenchLine]:
     lines = []
     for size, dots, target in ((1024, 21, 0.05), (2048, 21, 0.15), (2048, 31, 0.15)):
         img, centres, area, dark = _zoo_image(size, dots)
-        method, _, _ = choose_method(img, dots, dots, dark=dark)     # what extract uses on such images
+        method, _, chosen = choose_method(img, dots, dots, dark=dark)     # what extract uses on such images
         ours = best_time(lambda: extract_image(img, dots, dots, method=method, dark=dark), repeat=15)
-        t = extract_image(img, dots, dots, method=method, dark=dark).table
+        t = chosen.table
         det, g = _tuned_detector(area), (img if dark else 255 - img)
         find = lambda: cv2.findCirclesGrid(g, (dots, dots), flags=cv2.CALIB_CB_SYMMETRIC_GRID, blobDetector=det)  # noqa: E731
         ref = best_time(find, repeat=15)

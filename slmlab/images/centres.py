@@ -43,8 +43,8 @@ from .dots import as_float, gather_patches
 
 __all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streaky", "saturation",
-           "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges", "refine_symmetry",
-           "refine"]
+           "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges",
+           "refine_symmetry", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit", "symmetry")
@@ -172,12 +172,18 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     if len(c) == 0:
         return c
     flat, reach = flat_patches(img, c, radii, dark, reach, columns)
-    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5  # the window never reaches beyond (|c - base| <= 0.5)
-    ox, oy = flat.ox[disk], flat.oy[disk]
-    con = flat.contrast[:, disk]
+    con, ox, oy = _on_disk(flat.contrast, flat, reach)
     for _ in range(iterations):
         c = flat.base + _centroid(con, ox, oy, c - flat.base, reach)
     return c
+
+
+def _on_disk(contrast: np.ndarray, flat: Flat, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The contrast ``(n, P)`` and offsets ``ox, oy`` ``(P,)`` of the pixels :func:`_centroid`'s window can
+    reach: within ``reach + 1.5`` of the patch's centre pixel (the window never reaches beyond while
+    ``|c - base| <= 0.5``)."""
+    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5
+    return contrast[:, disk], flat.ox[disk], flat.oy[disk]
 
 
 def _centroid(con: np.ndarray, ox: np.ndarray, oy: np.ndarray, f: np.ndarray, reach: float) -> np.ndarray:
@@ -676,8 +682,7 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
     con = np.where(bad[:, None, None], np.float32(0), flat.contrast)
     ux, uy, w = _half_disk(reach)
     room = con.shape[1] // 2 - int(np.ceil(reach + 1)) - 1        # how far a centre may move inside its patch
-    disk = np.hypot(flat.ox, flat.oy) <= reach + 1.5
-    f = _centroid(con[:, disk], flat.ox[disk], flat.oy[disk], c - flat.base, reach)
+    f = _centroid(*_on_disk(con, flat, reach), c - flat.base, reach)
     f = np.clip(f, -room, room)                                   # one centroid step: nearer than the detection's
     for _ in range(iterations):                       # Gauss-Newton, the Jacobian at each estimate
         step, jac = _symmetry_step(con, f, ux, uy, w, None)

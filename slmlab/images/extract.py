@@ -34,8 +34,8 @@ from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contras
 from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
                       number_plate, origin_frame, plate_lattice, robust_model)
 
-__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots", "empty_dots_table",
-           "extract_image", "extract_image_methods", "choose_method", "report_summary", "extract_stereo_pairs"]
+__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots",
+           "empty_dots_table", "extract_image", "extract_image_methods", "choose_method", "report_summary", "extract_stereo_pairs"]
 
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")

@@ -88,8 +88,8 @@ def extraction_summary(errors: pd.DataFrame, *, depth_of_field_mm: float = 1.13,
 
 def extract_folder(set_dir: str | Path, sequences: list[str], *, methods=METHODS) -> pd.DataFrame:
     """Per-dot extraction errors of a rendered simulated set for several centre methods (by default every one of
-    :data:`slmlab.images.centres.METHODS`: moments, ellipse, edges, the model fit and the point of symmetry), each image's dots found
-    once and refined by each (:func:`slmlab.images.extract.extract_image_methods`).
+    :data:`slmlab.images.centres.METHODS`: moments, ellipse, edges, the model fit and the point of symmetry),
+    each image's dots found once and refined by each (:func:`slmlab.images.extract.extract_image_methods`).
 
     Returns :func:`extraction_errors` rows of the chosen sequences with a ``method`` column (for the error
     against defocus figure and the choice of the default method).
