@@ -7,11 +7,13 @@ import hashlib
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.optimize import least_squares
 
 import slmlab
 from slmlab.datasets import converters
@@ -19,8 +21,9 @@ from slmlab.images.dots import read_image
 from slmlab.images.extract import extract_image, report_summary
 from slmlab.images.imageset import extract_set
 from slmlab.studies import realrigs
-from slmlab.studies.extraction import extraction_by_degradation, rig_extraction_errors
-from slmlab.virtual.render import render_board_set, render_plate, render_set
+from slmlab.studies.extraction import extraction_by_degradation, plate_in_view_set, rig_extraction_errors
+from slmlab.virtual.floor import fisher_floor, rendered_floor
+from slmlab.virtual.render import render_board_set, render_plate, render_set, rig_degradations
 from slmlab.virtual.rigs import make_rig, rig_by_name
 
 
@@ -188,3 +191,46 @@ def test_dice_images_keep_their_dots(dataset_folder):
     assert len(counts) == 14 and counts["both"].min() >= 72
     assert counts[["left", "right"]].sum().sum() >= 0.99 * (1055 + 1107)
     assert any("an L of donut markers (28)" in n for n in notes), notes
+
+
+# ------------------------------------------------------------------------------------------ the information floor
+def test_the_floor_of_a_gaussian_spot_is_the_textbook_one():
+    """A Gaussian spot ``A exp(-r²/2s²)`` in white noise σ: the Cramér-Rao bound per coordinate is
+    ``σ/A · sqrt(2/π)``, whatever ``s``; a least-squares fit of the known spot reaches it in noise."""
+    amplitude, noise, s = 40.0, 3.0, 2.5
+    centres = np.array([[20.3, 19.6], [60.8, 21.1], [40.1, 58.4]])
+    yy, xx = np.mgrid[0:80, 0:80].astype(float)
+
+    def image(c):
+        return sum(amplitude * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * s * s)) for x, y in c)
+    gx = sum(amplitude * (xx - x) / s ** 2 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * s * s)) for x, y in centres)
+    gy = sum(amplitude * (yy - y) / s ** 2 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * s * s)) for x, y in centres)
+    got = fisher_floor(gx, gy, np.full(xx.shape, noise ** 2), np.ones(xx.shape, bool), centres)
+    assert np.allclose(got, noise / amplitude * np.sqrt(2 / np.pi), rtol=0.01), got
+    rng = np.random.default_rng(3)
+    clean, est = image(centres[:1]), []
+    for _ in range(200):
+        noisy = clean + noise * rng.standard_normal(clean.shape)
+        est.append(least_squares(lambda c: (image([c]) - noisy).ravel(), centres[0] + 0.2).x)
+    spread = np.std(np.array(est), axis=0)
+    assert np.allclose(spread, got[0], rtol=0.15), (spread, got[0])
+
+
+def test_a_rendered_dots_floor_falls_with_contrast_and_has_none_where_clipped():
+    rig = rig_by_name("greenough")
+    cal = plate_in_view_set(rig, 1)
+    quiet = replace(rig_degradations("greenough", "clean"), read_noise_dn=4.0)
+    low = rendered_floor(cal, replace(quiet, contrast_dn=30.0))
+    high = rendered_floor(cal, replace(quiet, contrast_dn=60.0))
+    ratio = low[["floor1_px", "floor2_px"]].to_numpy() / high[["floor1_px", "floor2_px"]].to_numpy()
+    assert np.all(np.isfinite(ratio)) and np.allclose(ratio, 2.0, rtol=0.01), (ratio.min(), ratio.max())
+    blind = rendered_floor(cal, replace(quiet, background_dn=400.0))  # the plate clipped at full scale
+    assert (blind[["floor1_px", "floor2_px"]].to_numpy() > 2 * high[["floor1_px", "floor2_px"]].to_numpy()).all()
+
+
+@pytest.mark.parametrize("rig, degradation", [("greenough", "noise"), ("stereo-piv", "lowest contrast")])
+def test_no_estimator_beats_the_floor_and_ours_is_near_it_in_noise(rig, degradation, tmp_path):
+    """The extraction's RMS against the truth is above the Cramér-Rao floor of the same dots (a floor that
+    estimators beat would be wrong) and, where noise is what limits it, within 1.5x of it."""
+    row = extraction_by_degradation([rig_by_name(rig)], [degradation], folder=tmp_path).iloc[0]
+    assert row["floor_px"] < row["rms_px"] < 1.5 * row["floor_px"], row.to_dict()

@@ -20,6 +20,7 @@ from ..images.dots import read_image
 from ..images.extract import extract_image_methods
 from ..images.imageset import TRACKED, extract_set
 from ..virtual.designs import simulate_design
+from ..virtual.floor import rendered_floor
 from ..virtual.microscope import from_dict
 from ..virtual.render import DEGRADATIONS, render_rig_set, rendered_truth, rig_degradations
 from ..virtual.sessions import Session
@@ -204,16 +205,19 @@ def rig_extraction_errors(points: pd.DataFrame, cal: CalibrationSet) -> pd.DataF
     return out
 
 
-def _degradation_row(errors: pd.DataFrame) -> dict:
-    """One row of :func:`extraction_by_degradation` from :func:`rig_extraction_errors`."""
-    vis = errors[errors["visible"]]
+def _degradation_row(errors: pd.DataFrame, floor: pd.DataFrame) -> dict:
+    """One row of :func:`extraction_by_degradation` from :func:`rig_extraction_errors` and the set's
+    :func:`slmlab.virtual.floor.rendered_floor`."""
+    vis = errors[errors["visible"]].merge(floor, on=["sequence", "position", "view", "row", "col"], how="left")
     dist = np.hypot(vis["err1"], vis["err2"])
     good = vis["found"] & (dist < 0.3 * vis["spacing_px"])
     e = np.r_[vis.loc[good, "err1"], vis.loc[good, "err2"]]
+    f = np.r_[vis.loc[good, "floor1_px"], vis.loc[good, "floor2_px"]]
     return {"images": int(vis.groupby(["sequence", "position", "view"]).ngroups), "visible_dots": int(len(vis)),
             "found_percent": float(100 * good.mean()) if len(vis) else float("nan"),
             "misnumbered": int((vis["found"] & ~good).sum()),
             "rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
+            "floor_px": float(np.sqrt(np.mean(f ** 2))) if len(f) else float("nan"),
             "max_px": float(dist[good].max()) if good.any() else float("nan")}
 
 
@@ -233,13 +237,16 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     (:func:`slmlab.virtual.render.render_rig_set`, PNG stored uncompressed: written to be read back at once) into
     ``folder`` (a temporary one by default), extracted as a user would (:func:`slmlab.images.imageset.extract_set`,
     ``method``) and held against the truth (:func:`rig_extraction_errors`). One row per degradation and rig:
-    ``images``, ``visible_dots`` (whole in the image, above a text strip), ``found_percent`` (found and numbered as the truth, within 0.3 of the dot
-    spacing), ``misnumbered``, ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the
-    found dots, the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be
-    numbered alone and were tracked by the stage motion of the images that were
-    (:func:`slmlab.images.tracking.track`; where that is ambiguous the image is left out), and ``note``: why a
-    set could not be extracted
-    (``extract``'s one-line error; then nothing is found)."""
+
+    * ``images``, ``visible_dots`` (whole in the image, above a text strip);
+    * ``found_percent`` (found and numbered as the truth, within 0.3 of the dot spacing), ``misnumbered``;
+    * ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the found dots, and ``floor_px``,
+      the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floor`: what no
+      estimator can beat under that camera's noise);
+    * the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be numbered
+      alone and were tracked by the stage motion of the images that were (:func:`slmlab.images.tracking.track`;
+      where that is ambiguous the image is left out), and ``note``: why a set could not be extracted
+      (``extract``'s one-line error; then nothing is found)."""
     if folder is None:  # a temporary folder, removed afterwards
         with tempfile.TemporaryDirectory(prefix="slmlab-extraction-") as tmp:
             return extraction_by_degradation(rigs, degradations, design=design, seed=seed, method=method, folder=tmp)
@@ -259,7 +266,7 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
             chosen = sorted({n.split("centres by ")[1].split(" ")[0] for n in notes if "centres by " in n})
             tracked = sum(int(k) for n in notes for k in re.findall(re.escape(TRACKED) + r" \((\d+)\)", n))
             rows.append({"degradation": name, "rig": rig.preset,
-                         **_degradation_row(rig_extraction_errors(pts, rendered)),
+                         **_degradation_row(rig_extraction_errors(pts, rendered), rendered_floor(rendered)),
                          "method": "/".join(chosen) or method, "tracked_images": tracked,
                          "note": next((n for n in notes if n.startswith("not extracted")), "")})
     return pd.DataFrame(rows)

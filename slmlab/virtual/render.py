@@ -40,8 +40,9 @@ from .simulate import stage_origin
 
 __all__ = ["dot_footprints", "footprints", "dot_coverage", "render_view", "render_pair", "render_set", "render_plate",
            "image_name", "write_png", "expose", "render_board", "board_reflectance", "render_board_set",
-           "board_orientation", "Degradations", "RIG_LOOKS", "DEGRADATIONS", "rig_degradations", "camera_image",
-           "render_rig_view", "visible_dots", "check_renderable", "render_rig_set", "set_camera", "rendered_truth"]
+           "board_orientation", "Degradations", "RIG_LOOKS", "DEGRADATIONS", "rig_degradations", "expected_image",
+           "noise_variance", "camera_image", "view_dots", "render_rig_view", "visible_dots", "sensor_rng", "rig_scenes",
+           "check_renderable", "render_rig_set", "set_camera", "rendered_truth"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -606,15 +607,15 @@ def _light(deg: Degradations, w: int, h: int, sensor: np.random.Generator, dots_
     return gain, region
 
 
-def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generator, sensor: np.random.Generator,
-                 dots_px: np.ndarray) -> np.ndarray:
-    """The camera's image (``uint8``, or ``uint16`` above 8 bits) of a dot coverage image (:func:`dot_coverage`)
-    with the :class:`Degradations`: the plate's and the dots' levels, illumination (gradient, vignetting),
-    window streaks, a bright region beside the plate (``dots_px``: the dots' image centres) (:func:`_light`),
-    shot and read noise, hot pixels, a text strip, quantisation. ``rng`` draws this image's noise; ``sensor``
-    what is the same in every image of the camera (its streaks and hot pixels: seed it per view)."""
+def expected_image(coverage: np.ndarray, deg: Degradations, sensor: np.random.Generator, dots_px: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The camera's noise-free image of a dot coverage image (:func:`dot_coverage`) [DN, ``float32``, before
+    clipping and quantisation]: the plate's and the dots' levels, illumination (gradient, vignetting), window
+    streaks and a bright region beside the plate (``dots_px``: the dots' image centres) (:func:`_light`); the
+    light's gain on the plate and dots ``(h, w)`` (the bright region adds to it); and the flat indices of the
+    camera's hot pixels (or ``None``). Draws from ``sensor`` (the same in every image of
+    the camera: seed it per view) what :func:`camera_image` draws, in the same order."""
     h, w = coverage.shape
-    full = float(2 ** deg.bits - 1)
     sign = -1.0 if deg.dark else 1.0
     gain, region = _light(deg, w, h, sensor, dots_px)
     hot = sensor.choice(h * w, int(deg.hot_pixel_fraction * h * w), replace=False) if deg.hot_pixel_fraction else None
@@ -624,6 +625,25 @@ def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generat
     radiance *= gain
     if region is not None:
         radiance += region
+    return radiance, gain, hot
+
+
+def noise_variance(radiance: np.ndarray, deg: Degradations) -> np.ndarray:
+    """Each pixel's noise variance [DN²] in :func:`camera_image` around the noise-free ``radiance``
+    (:func:`expected_image`): shot noise (the Poisson variance, ``shot_dn_per_e`` DN per electron), read noise
+    and the quantisation's 1/12."""
+    return deg.shot_dn_per_e * np.maximum(radiance, 0.0) + deg.read_noise_dn ** 2 + 1.0 / 12.0
+
+
+def camera_image(coverage: np.ndarray, deg: Degradations, rng: np.random.Generator, sensor: np.random.Generator,
+                 dots_px: np.ndarray) -> np.ndarray:
+    """The camera's image (``uint8``, or ``uint16`` above 8 bits) of a dot coverage image (:func:`dot_coverage`)
+    with the :class:`Degradations`: its noise-free image (:func:`expected_image`), shot and read noise, hot
+    pixels, a text strip, quantisation. ``rng`` draws this image's noise; ``sensor`` what is the same in every
+    image of the camera (its streaks and hot pixels: seed it per view)."""
+    h, w = coverage.shape
+    full = float(2 ** deg.bits - 1)
+    radiance, _, hot = expected_image(coverage, deg, sensor, dots_px)
     if deg.shot_dn_per_e:
         noise = rng.standard_normal((h, w), dtype=np.float32)
         spread = np.maximum(radiance, 0)
@@ -654,6 +674,18 @@ def _polygon_coverage(image: np.ndarray, vertices_px: np.ndarray, blur: float, s
     np.minimum(image, 1.0, out=image)
 
 
+def view_dots(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
+              deg: Degradations) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """What :func:`dot_coverage` draws of dots at rig-frame points ``(n, 3)`` [mm] on a plane of ``orientation``
+    in view ``side``: their image centres ``(n, 2)`` [px], ellipses (``(n, 2, 2)``, the unit disk to pixels:
+    :func:`footprints`), defocus radii ``(n,)`` [px] (the rig's blur at their depth and place plus the camera's,
+    :attr:`Degradations.defocus_px`) and the diffraction σ [px]."""
+    centres, jac = footprints(rig, points_mm, orientation, side)
+    blur, sigma = rig.blur_px(points_mm, side)
+    blur = np.asarray(blur, float) + _extra_defocus(centres, tuple(rig.image_size_px), deg)
+    return centres, jac * dot_diameter_mm / 2, blur, sigma
+
+
 def render_rig_view(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
                     deg: Degradations, rng: np.random.Generator, sensor: np.random.Generator,
                     markers: list | None = None) -> np.ndarray:
@@ -664,10 +696,8 @@ def render_rig_view(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_dia
     then the camera's degradations (:func:`camera_image`). ``markers``: polygons on the plate, each ``(k, 3)``
     rig-frame vertices [mm] (a square and a triangle, as stereo-PIV plates have)."""
     size = tuple(rig.image_size_px)
-    centres, jac = footprints(rig, points_mm, orientation, side)
-    blur, sigma = rig.blur_px(points_mm, side)
-    blur = np.asarray(blur, float) + _extra_defocus(centres, size, deg)
-    cov = dot_coverage(size, centres, jac * dot_diameter_mm / 2, blur, sigma)
+    centres, ellipses, blur, sigma = view_dots(rig, points_mm, orientation, dot_diameter_mm, side, deg)
+    cov = dot_coverage(size, centres, ellipses, blur, sigma)
     for vertices in markers or []:
         mid = np.asarray(vertices, float).mean(axis=0, keepdims=True)
         b, _ = rig.blur_px(mid, side)
@@ -706,7 +736,7 @@ def visible_dots(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diamet
     return c, vis
 
 
-def _sensor_rng(seed: int, side: str) -> np.random.Generator:
+def sensor_rng(seed: int, side: str) -> np.random.Generator:
     """The random stream of what one camera shows in every image (streaks, hot pixels)."""
     return np.random.default_rng([int(seed), 22, 0 if side == "l" else 1])
 
@@ -731,7 +761,7 @@ def _two_level_markers(plate: dict, origin_world: np.ndarray, to_rig) -> list:
     return [to_rig(origin_world + np.column_stack([v, np.zeros(len(v))])) for v in (triangle, square)]
 
 
-def _rig_scenes(cal: CalibrationSet, rig):
+def rig_scenes(cal: CalibrationSet, rig):
     """Per stage position ``(sequence, position)``: the rig-frame dots ``(n, 3)`` [mm], the plate's axes
     ``(3, 2)``, its dot diameter [mm], its ``meta.json`` name and its markers (a two-level plate's)."""
     sim = cal.meta["simulator"]
@@ -787,12 +817,12 @@ def render_rig_set(cal: CalibrationSet, out_dir: str | Path, deg: Degradations |
         written = _render_rig_boards(cal, rig, deg, out, seed, progress, compress)
     else:
         written = []
-        scenes = list(_rig_scenes(cal, rig))
+        scenes = list(rig_scenes(cal, rig))
         for seq, pos, p, axes, diam, _, markers in tqdm(scenes, desc="rendering stereo pairs", unit="pair",
                                                           disable=None if progress is None else not progress):
             for side in "lr":
                 img = render_rig_view(rig, p, axes, diam, side, deg, _image_rng(seed, seq, pos, side),
-                                      _sensor_rng(seed, side), markers)
+                                      sensor_rng(seed, side), markers)
                 write_png(out / "images" / image_name(seq, pos, side), img, compress=compress)
                 written.append(out / "images" / image_name(seq, pos, side))
     meta = json.loads(json_text(cal.meta))
@@ -842,7 +872,7 @@ def _render_rig_boards(cal: CalibrationSet, rig, deg: Degradations, out: Path, s
         for side in "lr":
             blur, sigma = rig.blur_px(centre[None], side)
             refl = board_reflectance(rig, texture, ppmm, size_mm, centre, axes, side, 5, float(blur[0]), sigma)
-            img = camera_image(1.0 - refl, ink, _image_rng(seed, seq, int(pos), side), _sensor_rng(seed, side),
+            img = camera_image(1.0 - refl, ink, _image_rng(seed, seq, int(pos), side), sensor_rng(seed, side),
                                np.empty((0, 2)))
             write_png(out / "images" / image_name(seq, int(pos), side), img, compress=compress)
             written.append(out / "images" / image_name(seq, int(pos), side))
@@ -868,10 +898,10 @@ def rendered_truth(cal: CalibrationSet) -> pd.DataFrame:
     frames = []
     groups = cal.truth.groupby(["sequence", "position"], sort=False).indices
     seed = int(cal.meta["simulator"]["seed"])
-    for seq, pos, p, axes, diam, _, _ in _rig_scenes(cal, rig):
+    for seq, pos, p, axes, diam, _, _ in rig_scenes(cal, rig):
         idx = groups[(seq, pos)]
         for side in "lr":
-            c, vis = visible_dots(rig, p, axes, diam, side, deg, _sensor_rng(seed, side))
+            c, vis = visible_dots(rig, p, axes, diam, side, deg, sensor_rng(seed, side))
             f = pd.DataFrame({"sequence": seq, "position": pos, "view": side,
                               "row": cal.truth["row"].to_numpy()[idx], "col": cal.truth["col"].to_numpy()[idx],
                               "w1": c[:, 0], "w2": c[:, 1], "visible": vis, "z_mm": p[:, 2]})
