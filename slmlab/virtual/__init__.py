@@ -10,8 +10,9 @@
 ``presets``, ``sessions``, ``designs``
     named microscopes (``paper``, ``leica``, ``ideal``), what a calibration images (Table 3, §6), and the
     designs any rig can be calibrated with (Z stacks, stage sequences, known targets);
-``simulate``, ``render``
-    calibration sets with ``truth.csv``, and their images;
+``simulate``, ``render``, ``floor``
+    calibration sets with ``truth.csv``, their images, and the information floor of each rendered dot's centre
+    (the Cramér-Rao bound under the camera's noise);
 ``derive``
     the ``paper`` preset derived from the paper's Tables 1, 2 and 4 (the one part that uses the paper's
     method); ``rig_checks`` the rigs' physics checked (round trip, focus, Snell against Fermat).
