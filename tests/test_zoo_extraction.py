@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
 import slmlab
@@ -20,11 +22,13 @@ from slmlab.datasets import converters
 from slmlab.images.dots import read_image
 from slmlab.images.extract import extract_image, report_summary
 from slmlab.images.imageset import extract_set
+from slmlab.io import write_set
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import extraction_by_degradation, plate_in_view_set, rig_extraction_errors
 from slmlab.virtual.floor import fisher_floor, rendered_floor
-from slmlab.virtual.render import render_board_set, render_plate, render_set, rig_degradations
-from slmlab.virtual.rigs import make_rig, rig_by_name
+from slmlab.virtual.render import (render_board_set, render_plate, render_rig_set, render_set, rendered_truth,
+                                   rig_degradations)
+from slmlab.virtual.rigs import make_rig, random_rig, rig_by_name
 
 
 def cli(*args):
@@ -238,3 +242,30 @@ def test_no_estimator_beats_the_floor_and_ours_is_near_it_in_noise(rig, degradat
     estimators beat would be wrong) and, where noise is what limits it, within 1.5x of it."""
     row = extraction_by_degradation([rig_by_name(rig)], [degradation], folder=tmp_path).iloc[0]
     assert row["floor_px"] < row["rms_px"] < 1.5 * row["floor_px"], row.to_dict()
+
+
+@pytest.mark.slow  # rigs drawn at random, rendered and extracted (seconds each)
+@settings(max_examples=max(4, settings.default.max_examples // 10))  # 4 at the quick profile, 30 thorough
+@given(kind=st.sampled_from(["greenough", "stereo-dic", "stereo-piv"]), seed=st.integers(10, 10_000),
+       contrast=st.floats(20.0, 150.0), read=st.floats(0.5, 6.0), shot=st.floats(0.0, 0.5))
+def test_on_rigs_drawn_at_random_the_floor_is_finite_falls_with_noise_and_is_not_beaten(kind, seed, contrast,
+                                                                                        read, shot, tmp_path):
+    rig = random_rig(kind, seed)
+    cal = plate_in_view_set(rig, 1)
+    camera = replace(rig_degradations(kind, "clean"), contrast_dn=contrast, read_noise_dn=read, shot_dn_per_e=shot)
+    d = write_set(tmp_path / f"{kind}-{seed}-{contrast:.3f}-{read:.3f}-{shot:.3f}", cal)
+    render_rig_set(cal, d, camera, progress=False, compress=False)
+    rendered = slmlab.read_set(d)
+    floor = rendered_floor(rendered)                       # the camera the set was rendered with
+    quieter = rendered_floor(rendered, replace(camera, read_noise_dn=read / 2, shot_dn_per_e=shot / 4))
+    cols = ["floor1_px", "floor2_px"]
+    vis = rendered_truth(rendered)["visible"].to_numpy()
+    f, q = floor[cols].to_numpy()[vis], quieter[cols].to_numpy()[vis]
+    assert len(f) and np.isfinite(f).all() and (f > 0).all()
+    assert (q < f).all()                                   # less noise, a lower floor: every dot
+    pts, _ = extract_set(d, progress=False)
+    e = rig_extraction_errors(pts, rendered).merge(floor, on=["sequence", "position", "view", "row", "col"])
+    good = e["visible"] & e["found"] & (np.hypot(e["err1"], e["err2"]) < 0.3 * e["spacing_px"])
+    assert good.sum() >= 0.99 * e["visible"].sum()
+    rms = np.sqrt(np.mean(np.r_[e.loc[good, "err1"], e.loc[good, "err2"]] ** 2))
+    assert rms >= np.sqrt(np.mean(e.loc[good, cols].to_numpy() ** 2)), rms   # no estimator beats it
