@@ -180,7 +180,7 @@ def _bench_zoo_extract() -> list[BenchLine]:
     lines = []
     for size, dots, target in ((1024, 21, 0.05), (2048, 21, 0.15), (2048, 31, 0.15)):
         img, centres, area, dark = _zoo_image(size, dots)
-        method, _, chosen = choose_method(img, dots, dots, dark=dark)     # what extract uses on such images
+        method, _, chosen, _ = choose_method(img, dots, dots, dark=dark)  # what extract uses on such images
         ours = best_time(lambda: extract_image(img, dots, dots, method=method, dark=dark), repeat=15)
         t = chosen.table
         det, g = _tuned_detector(area), (img if dark else 255 - img)
@@ -274,7 +274,7 @@ def _bench_real_rigs() -> list[BenchLine]:
         what = "virtual 7 x 7 plate, bright dots, 16 bit (case E not present)"
     kw = dict(dark=None, two_level=real is not None)
     rows_cols = (None, None) if real is not None else (7, 7)
-    method, _, dots = choose_method(img, *rows_cols, **kw)
+    method, _, dots, _ = choose_method(img, *rows_cols, **kw)
     ours = best_time(lambda: extract_image(img, *rows_cols, method=method, **kw), repeat=15)
     found = len(dots.table)
     params = cv2.SimpleBlobDetector_Params()

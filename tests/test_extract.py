@@ -339,6 +339,29 @@ def test_auto_lets_the_fit_lose_one_dot_and_compares_on_the_common_dots():
     assert kept == {"symmetry": 48, "moments": 49}
 
 
+def test_on_textured_dots_the_fit_is_taken_only_where_clearly_smoother():
+    """_textured_fit: the model fit replaces the edge fit only below AUTO_EDGE_RATIO of the best other's lattice
+    residual among those that keep the most dots; a NaN residual or an estimator that lost dots does not set
+    the bar; not taken, the others' residuals are reported as they were, with the fit's."""
+    from slmlab.images.extract import AUTO_EDGE_RATIO, _textured_fit
+    rng = np.random.default_rng(1)
+    i1, i2 = np.meshgrid(np.arange(9), np.arange(9))
+    grid = pd.DataFrame({"i1": i1.ravel(), "i2": i2.ravel(), "level": 0})
+
+    def table(scatter):
+        return grid.assign(w1=30.0 * grid["i1"] + rng.normal(0, scatter, 81),
+                           w2=30.0 * grid["i2"] + rng.normal(0, scatter, 81))
+    edges, clean = table(0.05), table(0.001)
+    res = {"moments": float("nan"), "edges": 0.05}
+    taken, out = _textured_fit({"moments": edges, "edges": edges, "fit": table(0.5 * AUTO_EDGE_RATIO * 0.05)}, res)
+    assert taken and out["fit"] < AUTO_EDGE_RATIO * out["edges"]
+    taken, out = _textured_fit({"moments": edges, "edges": edges, "fit": table(0.9 * 0.05)}, res)
+    assert not taken and out["edges"] == 0.05 and np.isnan(out["moments"]) and out["fit"] > 0
+    lost = clean.iloc[:70]                       # smooth, but it lost dots: it does not set the bar
+    taken, _ = _textured_fit({"moments": lost, "edges": edges, "fit": table(0.5 * AUTO_EDGE_RATIO * 0.05)}, res)
+    assert taken
+
+
 def test_an_even_background_is_neither_saturated_nor_streaky():
     """On a plate under even light (no pixel at full scale, no streaks) auto does not try the slow fit; a 12-bit
     image in 16 bits saturates at 4095, a 16-bit one below its full scale does not."""
@@ -385,9 +408,9 @@ def test_the_chosen_method_s_dots_are_those_of_extract_image():
     what extract_image gives by that method, dot for dot."""
     from slmlab.images.extract import choose_method
     img, _ = render_plate(slmlab.preset("paper"), slmlab.preset("paper").moving_plate, (0.0, 0.0, 0.3), seed=4)
-    method, res, dots = choose_method(img, 7, 7)
+    method, res, dots, runner_up = choose_method(img, 7, 7)
     again = extract_image(img, 7, 7, method=method)
-    assert method in res and len(dots.table) == 49
+    assert method in res and len(dots.table) == 49 and runner_up in res and runner_up != "fit"
     pd.testing.assert_frame_equal(dots.table, again.table)
     assert dots.note == again.note and dots.rejected == again.rejected
     with pytest.raises(slmlab.SlmlabError, match="unknown anchor"):

@@ -23,6 +23,7 @@ from slmlab.images.dots import read_image
 from slmlab.images.extract import extract_image, report_summary
 from slmlab.images.imageset import extract_set
 from slmlab.io import write_set
+from slmlab.virtual.designs import simulate_design
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import extraction_by_degradation, plate_in_view_set, rig_extraction_errors
 from slmlab.virtual.floor import fisher_floor, rendered_floor
@@ -225,6 +226,9 @@ def test_the_floor_of_a_gaussian_spot_is_the_textbook_one():
 
 
 def test_a_rendered_dots_floor_falls_with_contrast_and_has_none_where_clipped():
+    """Read noise alone: twice the contrast, half the floor (the gradient scales with the contrast and the
+    light's gain, the noise does not); a plate clipped at full scale leaves the dots' cores (a higher floor), an
+    image clipped everywhere carries no information (an infinite floor); a ChArUco board has no dots (NaN)."""
     rig = rig_by_name("greenough")
     cal = plate_in_view_set(rig, 1)
     quiet = replace(rig_degradations("greenough", "clean"), read_noise_dn=4.0)
@@ -232,8 +236,12 @@ def test_a_rendered_dots_floor_falls_with_contrast_and_has_none_where_clipped():
     high = rendered_floor(cal, replace(quiet, contrast_dn=60.0))
     ratio = low[["floor1_px", "floor2_px"]].to_numpy() / high[["floor1_px", "floor2_px"]].to_numpy()
     assert np.all(np.isfinite(ratio)) and np.allclose(ratio, 2.0, rtol=0.01), (ratio.min(), ratio.max())
-    blind = rendered_floor(cal, replace(quiet, background_dn=400.0))  # the plate clipped at full scale
-    assert (blind[["floor1_px", "floor2_px"]].to_numpy() > 2 * high[["floor1_px", "floor2_px"]].to_numpy()).all()
+    clipped = rendered_floor(cal, replace(quiet, background_dn=400.0))  # the plate clipped, the dots' cores not
+    assert (clipped[["floor1_px", "floor2_px"]].to_numpy() > 2 * high[["floor1_px", "floor2_px"]].to_numpy()).all()
+    blind = rendered_floor(cal, replace(quiet, background_dn=600.0))  # the plate and the dots clipped
+    assert np.isinf(blind[["floor1_px", "floor2_px"]].to_numpy()).all()
+    board = rendered_floor(simulate_design(make_rig("stereo-dic"), "charuco-stack", seed=1))
+    assert len(board) and board[["floor1_px", "floor2_px"]].isna().all().all()   # a board has no dots
 
 
 @pytest.mark.parametrize("rig, degradation", [("greenough", "noise"), ("stereo-piv", "lowest contrast")])

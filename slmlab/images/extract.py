@@ -22,6 +22,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -35,7 +36,8 @@ from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, insi
                       number_plate, origin_frame, plate_lattice, robust_model)
 
 __all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots",
-           "empty_dots_table", "extract_image", "extract_image_methods", "choose_method", "report_summary", "extract_stereo_pairs"]
+           "empty_dots_table", "extract_image", "extract_image_methods", "Choice", "choose_method", "report_summary",
+           "extract_stereo_pairs"]
 
 
 IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
@@ -47,7 +49,9 @@ IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\
 #: the moments'); otherwise the smoother of moments and symmetry, the more precise on uniform dots (symmetry
 #: where noise limits). Where the centroid says the dots are textured, the edge fit is taken even where the
 #: point of symmetry lies a little more smoothly: on the stereo-PIV rig's bright dots at the lowest contrast and
-#: with its own camera, the edge fits were the nearer the truth (0.020 and 0.017 px RMS against 0.022 and 0.022)
+#: with its own camera, the edge fits were the nearer the truth (0.020 and 0.017 px RMS against 0.022 and 0.022).
+#: On dots so found textured the model ``fit`` is tried too, and taken only below this times the best other's
+#: (:func:`_textured_fit`; :data:`AUTO_FIT_RATIO` says why)
 AUTO_EDGE_RATIO = 0.7
 #: ``method="auto"`` takes the model ``fit``, on an image with saturation or streaks around the dots
 #: (:func:`slmlab.images.centres.uneven_background`), where its centres lie this much more smoothly on the
@@ -559,36 +563,59 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
                      loc.dark, rep, loc.cand.noise, loc.hot)
 
 
-def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> tuple[str, dict, ImageDots]:
+class Choice(NamedTuple):
+    """:func:`choose_method`'s answer: the ``method``, the lattice ``residuals`` [px] of each estimator tried, the
+    image's ``dots`` by the method (:func:`extract_image`'s result, from the same search) and the ``runner_up``:
+    the rule's choice without the model fit (what an image on which the fit loses dots takes instead)."""
+
+    method: str
+    residuals: dict
+    dots: ImageDots
+    runner_up: str
+
+
+def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> Choice:
     """The centre estimator for a plate's images (``method="auto"``): the dots of one image found once and
     refined by every estimator; among those that keep the most dots (an estimator pulled off the lattice by a
     glare or a streak loses dots; the fit may lose :data:`AUTO_FIT_SLACK`), compared by
-    :func:`slmlab.images.lattice.lattice_residual_px` on the dots all of them kept: the model
-    ``fit``, tried only on an image with saturation or streaks around the dots
-    (:func:`slmlab.images.centres.uneven_background`), if it is below :data:`AUTO_FIT_RATIO` times the best
-    other's residual (where the rule below takes an edge estimator, tried too, and taken below
-    :data:`AUTO_EDGE_RATIO` times it); else an edge estimator (the smoother of ``ellipse`` and ``edges``) only if it is below
-    :data:`AUTO_EDGE_RATIO` times the moments' residual or the moments lost dots (textured dots), else the
-    smoother of ``moments`` and ``symmetry``. ``kw``: :func:`extract_image`'s
-    keywords. Returns the method, the residual [px] of each estimator tried and the image's dots by the method
-    chosen (:func:`extract_image`'s result, from the same search)."""
+    :func:`slmlab.images.lattice.lattice_residual_px` on the dots all of them kept: the model ``fit``, tried on
+    an image with saturation or streaks around the dots (:func:`slmlab.images.centres.uneven_background`), if it
+    is below :data:`AUTO_FIT_RATIO` times the best other's residual; else an edge estimator (the smoother of
+    ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times the moments' residual or the
+    moments lost dots (textured dots; then the model fit is tried too, :func:`_textured_fit`), else the smoother
+    of ``moments`` and ``symmetry``. ``kw``: :func:`extract_image`'s keywords. Returns a :class:`Choice`."""
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
     _check_options(METHODS, anchoring["anchor"])
     loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
     if loc.fit is None:
-        return "moments", {m: float("nan") for m in METHODS}, _no_lattice(loc)
+        return Choice("moments", {m: float("nan") for m in METHODS}, _no_lattice(loc), "moments")
     uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)
     tabled = {m: _table(loc, m, anchoring["two_level"]) for m in METHODS if uneven or m != "fit"}
     kept, res = _kept_and_residuals({m: t[0] for m, t in tabled.items()})
     method = _best_method(kept, res)
+    runner_up = _best_method({m: k for m, k in kept.items() if m != "fit"}, res)
     if method in ("ellipse", "edges") and "fit" not in tabled:  # textured: something pulls the dots off symmetry
         tabled["fit"] = _table(loc, "fit", anchoring["two_level"])
-        kept, res = _kept_and_residuals({m: t[0] for m, t in tabled.items()})
-        if _best_method(kept, res) == "fit" and res["fit"] < AUTO_EDGE_RATIO * min(
-                v for m, v in res.items() if m != "fit"):
-            method = "fit"
-    return method, res, _finish(loc, method, rows, cols, anchoring, kw.get("dot_diameter_px"), tabled[method])
+        taken, res = _textured_fit({m: t[0] for m, t in tabled.items()}, res)
+        method = "fit" if taken else method
+    dots = _finish(loc, method, rows, cols, anchoring, kw.get("dot_diameter_px"), tabled[method])
+    return Choice(method, res, dots, runner_up)
+
+
+def _textured_fit(tables: dict, res: dict) -> tuple[bool, dict]:
+    """Whether the model fit is taken on dots :func:`_best_method` found textured (an edge estimator chosen on
+    ``res``, the others' residuals [px]), from every estimator's table of dots (the fit's among them): only where
+    the rule, with the fit, takes it and its residual is below :data:`AUTO_EDGE_RATIO` times the best finite one
+    of the others that keep the most dots (a more flexible model replaces a simpler one only where clearly
+    smoother, as an edge fit replaces the centroid). Returns that and the residuals to report: the comparison's
+    if taken, else ``res`` and the fit's."""
+    kept, with_fit = _kept_and_residuals(tables)
+    most = max(kept.values())
+    others = [with_fit[m] for m in kept if m != "fit" and kept[m] == most and np.isfinite(with_fit[m])]
+    taken = (_best_method(kept, with_fit) == "fit" and bool(others)
+             and with_fit["fit"] < AUTO_EDGE_RATIO * min(others))
+    return taken, with_fit if taken else {**res, "fit": with_fit["fit"]}
 
 
 def _kept_and_residuals(tables: dict) -> tuple[dict, dict]:

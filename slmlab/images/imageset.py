@@ -289,11 +289,11 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
         if spec.pattern == "dots":
             kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2)
             if method == "auto" and (spec.name, side) not in chosen:
-                chosen[(spec.name, side)], res, dots = choose_method(img, spec.rows, spec.cols, **kw)
+                chosen[(spec.name, side)], res, dots, runner_up[(spec.name, side)] = choose_method(
+                    img, spec.rows, spec.cols, **kw)
                 notes.append(f"plate {spec.name}, {_VIEW[side]} view: centres by {chosen[(spec.name, side)]} "
                              "(lattice residual " + ", ".join(f"{v:.3f} px by {k}" for k, v in res.items())
                              + f", on {path.name})")
-                runner_up[(spec.name, side)] = min((m for m in res if m != "fit"), key=res.get)
             elif method == "auto" and chosen[(spec.name, side)] == "fit":
                 dots = _fit_or(img, spec, runner_up[(spec.name, side)], kw, path, notes)
             else:
@@ -316,9 +316,10 @@ _VIEW = {"l": "left", "r": "right"}
 def _fit_or(img: np.ndarray, spec: PlateSpec, other: str, kw: dict, path: Path, notes: list) -> ImageDots:
     """An image of a view whose centres are by the model ``fit`` (chosen on its first image): the fit's dots,
     unless it lost more than :data:`slmlab.images.extract.AUTO_FIT_SLACK` of the dots the ``other`` estimator
-    (the smoothest of the rest on the first image) keeps: a narrow window streak across some dots of one image
-    can throw their fits off the lattice (stereo-piv:4's streaks: 17 of 441 dots lost, 0.12 px RMS against the
-    edge fit's 0.066 on the dots kept); then that image is the other's, and a note says so."""
+    keeps (the rule's choice without the fit on the first image, :class:`slmlab.images.extract.Choice`): a
+    narrow window streak across some dots of one image can throw their fits off the lattice (stereo-piv:4's
+    streaks: 17 of 441 dots lost, 0.12 px RMS against the edge fit's 0.066 on the dots kept); then that image
+    is the other's, and a note says so."""
     both = extract_image_methods(img, spec.rows, spec.cols, methods=("fit", other), **kw)
     if len(both["fit"].table) >= len(both[other].table) - AUTO_FIT_SLACK:
         return both["fit"]

@@ -208,7 +208,8 @@ def rig_extraction_errors(points: pd.DataFrame, cal: CalibrationSet) -> pd.DataF
 def _degradation_row(errors: pd.DataFrame, floor: pd.DataFrame) -> dict:
     """One row of :func:`extraction_by_degradation` from :func:`rig_extraction_errors` and the set's
     :func:`slmlab.virtual.floor.rendered_floor`."""
-    vis = errors[errors["visible"]].merge(floor, on=["sequence", "position", "view", "row", "col"], how="left")
+    vis = errors[errors["visible"]].merge(floor, on=["sequence", "position", "view", "row", "col"], how="left",
+                                          validate="many_to_one")
     dist = np.hypot(vis["err1"], vis["err2"])
     good = vis["found"] & (dist < 0.3 * vis["spacing_px"])
     e = np.r_[vis.loc[good, "err1"], vis.loc[good, "err2"]]
@@ -243,7 +244,8 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     * ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the found dots, and ``floor_px``,
       the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floor`: what no
       estimator can beat under that camera's noise);
-    * the centre ``method`` the extraction chose, ``tracked_images``: how many images could not be numbered
+    * the centre ``method``: each view's choice and any image's runner-up where the fit lost dots there
+      (:func:`slmlab.images.imageset.extract_set`), ``tracked_images``: how many images could not be numbered
       alone and were tracked by the stage motion of the images that were (:func:`slmlab.images.tracking.track`;
       where that is ambiguous the image is left out), and ``note``: why a set could not be extracted
       (``extract``'s one-line error; then nothing is found)."""

@@ -18,9 +18,11 @@ carry nothing, and neither do hot pixels or the text strip.
 The bound knows the dot's shape, the plate's level and the light; a real estimator must find them as well.
 For a point-symmetric dot on a flat plate, the level and contrast move the image evenly about the centre and
 the centre oddly, so they cost nothing. The plate's local tilt is odd too: with the dot's amplitude and a
-background plane added to the Fisher matrix, the bound rises by 12 % on the Greenough rig in noise, 10 % at its
-lowest contrast, 6 % and 2 % on the stereo-DIC and stereo-PIV rigs in noise (their cameras' dots sit farther
-apart than they blur), and the point of symmetry is then within 1.09x of it on the Greenough rig. A gradient of
+background plane added to the Fisher matrix (over the same cells), the bound rises by 12 % on the Greenough
+rig in noise, 10 % at its lowest contrast, 6 % and 2 % on the stereo-DIC and stereo-PIV rigs in noise (their
+cameras' dots sit farther apart than they blur), and the point of symmetry is then within 1.09x of it on the
+Greenough rig. The bound is per dot and for unbiased estimators: a lattice fitted through many dots, or a
+biased estimator, is not bound by it. A gradient of
 light, the neighbours' blur, streaks across the dot and a bright region beside it break the symmetry further:
 there the floor is optimistic. On the Greenough rig with every degradation at once the floor is 0.048 px per
 coordinate (notebook 11): a 0.05 px target is then at the floor itself.
@@ -75,7 +77,8 @@ def view_floor(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter
                deg: Degradations, sensor: np.random.Generator) -> np.ndarray:
     """Cramér-Rao floor ``(n, 2)`` [px] of the centres of dots rendered by
     :func:`slmlab.virtual.render.render_rig_view` (the same arguments; ``sensor``: the camera's stream, for its
-    streaks, bright region and hot pixels). A plate's markers are left out: they carry no dot's centre."""
+    streaks and hot pixels; the bright region is placed beside the dots). A plate's markers are left out: they
+    carry no dot's centre, and lie in the holes between the dots' cells."""
     size = tuple(rig.image_size_px)
     centres, ellipses, blur, sigma = view_dots(rig, points_mm, orientation, dot_diameter_mm, side, deg)
     cover = dot_coverage(size, centres, ellipses, blur, sigma)
@@ -98,8 +101,9 @@ def view_floor(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter
 def rendered_floor(cal: CalibrationSet, deg: Degradations | None = None) -> pd.DataFrame:
     """The Cramér-Rao floor of every dot of a rendered rig set in every image (:func:`view_floor`):
     ``sequence, position, view, row, col, floor1_px, floor2_px`` (per coordinate), keyed as
-    :func:`slmlab.virtual.render.rendered_truth`. ``deg``: the camera, by default the one the set was rendered
-    with (:func:`slmlab.virtual.render.set_camera`)."""
+    :func:`slmlab.virtual.render.rendered_truth`; NaN for a board's corners (a ChArUco design: no dots).
+    ``deg``: the camera, by default the one the set was rendered with
+    (:func:`slmlab.virtual.render.set_camera`)."""
     sim = cal.meta["simulator"]
     rig = rig_from_dict(sim["microscope"])
     deg = deg or set_camera(cal)
@@ -109,8 +113,10 @@ def rendered_floor(cal: CalibrationSet, deg: Degradations | None = None) -> pd.D
     for seq, pos, p, axes, diam, _, _ in rig_scenes(cal, rig):
         idx = groups[(seq, pos)]
         for side in "lr":
-            f = view_floor(rig, p, axes, diam, side, deg, sensor_rng(seed, side))
+            f = (view_floor(rig, p, axes, diam, side, deg, sensor_rng(seed, side)) if diam > 0
+                 else np.full((len(idx), 2), np.nan))
             frames.append(pd.DataFrame({"sequence": seq, "position": pos, "view": side,
-                                        "row": cal.truth["row"].to_numpy()[idx], "col": cal.truth["col"].to_numpy()[idx],
+                                        "row": cal.truth["row"].to_numpy()[idx],
+                                        "col": cal.truth["col"].to_numpy()[idx],
                                         "floor1_px": f[:, 0], "floor2_px": f[:, 1]}))
     return pd.concat(frames, ignore_index=True)
