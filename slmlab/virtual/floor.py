@@ -22,9 +22,8 @@ background plane added to the Fisher matrix (over the same cells), the bound ris
 rig in noise, 10 % at its lowest contrast, 6 % and 2 % on the stereo-DIC and stereo-PIV rigs in noise (their
 cameras' dots sit farther apart than they blur), and the point of symmetry is then within 1.09x of it on the
 Greenough rig. The bound is per dot and for unbiased estimators: a lattice fitted through many dots, or a
-biased estimator, is not bound by it. A gradient of
-light, the neighbours' blur, streaks across the dot and a bright region beside it break the symmetry further:
-there the floor is optimistic. On the Greenough rig with every degradation at once the floor is 0.048 px per
+biased estimator, is not bound by it. A gradient of light, the neighbours' blur, streaks across the dot and a
+bright region beside it break the symmetry further: there the floor is optimistic. On the Greenough rig with every degradation at once the floor is 0.048 px per
 coordinate (notebook 11): a 0.05 px target is then at the floor itself.
 """
 
@@ -35,8 +34,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from ..io import CalibrationSet
-from .render import (Degradations, dot_coverage, expected_image, noise_variance, rig_scenes, sensor_rng,
-                     set_camera, view_dots)
+from .render import Degradations, dot_coverage, expected_image, noise_variance, rig_views, set_camera, view_dots
 from .rigs import rig_from_dict
 
 __all__ = ["SHIFT_PX", "CELL", "fisher_floor", "view_floor", "rendered_floor"]
@@ -104,19 +102,10 @@ def rendered_floor(cal: CalibrationSet, deg: Degradations | None = None) -> pd.D
     :func:`slmlab.virtual.render.rendered_truth`; NaN for a board's corners (a ChArUco design: no dots).
     ``deg``: the camera, by default the one the set was rendered with
     (:func:`slmlab.virtual.render.set_camera`)."""
-    sim = cal.meta["simulator"]
-    rig = rig_from_dict(sim["microscope"])
+    rig = rig_from_dict(cal.meta["simulator"]["microscope"])
     deg = deg or set_camera(cal)
-    seed = int(sim["seed"])
-    groups = cal.truth.groupby(["sequence", "position"], sort=False).indices
     frames = []
-    for seq, pos, p, axes, diam, _, _ in rig_scenes(cal, rig):
-        idx = groups[(seq, pos)]
-        for side in "lr":
-            f = (view_floor(rig, p, axes, diam, side, deg, sensor_rng(seed, side)) if diam > 0
-                 else np.full((len(idx), 2), np.nan))
-            frames.append(pd.DataFrame({"sequence": seq, "position": pos, "view": side,
-                                        "row": cal.truth["row"].to_numpy()[idx],
-                                        "col": cal.truth["col"].to_numpy()[idx],
-                                        "floor1_px": f[:, 0], "floor2_px": f[:, 1]}))
+    for keys, _, p, axes, diam, side, sensor in rig_views(cal, rig):
+        f = view_floor(rig, p, axes, diam, side, deg, sensor) if diam > 0 else np.full((len(keys), 2), np.nan)
+        frames.append(keys.assign(floor1_px=f[:, 0], floor2_px=f[:, 1]))
     return pd.concat(frames, ignore_index=True)

@@ -42,7 +42,7 @@ __all__ = ["dot_footprints", "footprints", "dot_coverage", "render_view", "rende
            "image_name", "write_png", "expose", "render_board", "board_reflectance", "render_board_set",
            "board_orientation", "Degradations", "RIG_LOOKS", "DEGRADATIONS", "rig_degradations", "expected_image",
            "noise_variance", "camera_image", "view_dots", "render_rig_view", "visible_dots", "sensor_rng", "rig_scenes",
-           "check_renderable", "render_rig_set", "set_camera", "rendered_truth"]
+           "check_renderable", "render_rig_set", "set_camera", "rig_views", "rendered_truth"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -888,24 +888,33 @@ def set_camera(cal: CalibrationSet) -> Degradations:
     return rig_degradations(sim["microscope"].get("rig", "microscope"))
 
 
-def rendered_truth(cal: CalibrationSet) -> pd.DataFrame:
-    """Every dot of a rendered rig set in every image, as :func:`render_rig_set` drew it: ``sequence, position,
-    view, row, col, w1, w2`` [px] (the true centre), ``visible`` (:func:`visible_dots`, for the camera the set
-    was rendered with, its streaks and bright region too), ``z_mm`` (rig frame, the focal plane at 0) and, for a known target, ``x_mm, y_mm`` (its
-    place on the target)."""
-    rig = rig_from_dict(cal.meta["simulator"]["microscope"])
-    deg = set_camera(cal)
-    frames = []
+def rig_views(cal: CalibrationSet, rig):
+    """Every view of every stage position of a set simulated on ``rig``, in :func:`render_rig_set`'s order:
+    ``(keys, idx, points_mm, axes, dot_diameter_mm, side, sensor)``: the frame ``sequence, position, view, row,
+    col`` of its dots, their rows in ``truth.csv``, the rig-frame dots ``(n, 3)`` [mm], the plate's axes, its dot
+    diameter [mm], the view and the camera's stream (:func:`sensor_rng`)."""
     groups = cal.truth.groupby(["sequence", "position"], sort=False).indices
     seed = int(cal.meta["simulator"]["seed"])
+    rows, cols = cal.truth["row"].to_numpy(), cal.truth["col"].to_numpy()
     for seq, pos, p, axes, diam, _, _ in rig_scenes(cal, rig):
         idx = groups[(seq, pos)]
         for side in "lr":
-            c, vis = visible_dots(rig, p, axes, diam, side, deg, sensor_rng(seed, side))
-            f = pd.DataFrame({"sequence": seq, "position": pos, "view": side,
-                              "row": cal.truth["row"].to_numpy()[idx], "col": cal.truth["col"].to_numpy()[idx],
-                              "w1": c[:, 0], "w2": c[:, 1], "visible": vis, "z_mm": p[:, 2]})
-            if "x_mm" in cal.points.columns:
-                f["x_mm"], f["y_mm"] = cal.points["x_mm"].to_numpy()[idx], cal.points["y_mm"].to_numpy()[idx]
-            frames.append(f)
+            keys = pd.DataFrame({"sequence": seq, "position": pos, "view": side, "row": rows[idx], "col": cols[idx]})
+            yield keys, idx, p, axes, diam, side, sensor_rng(seed, side)
+
+
+def rendered_truth(cal: CalibrationSet) -> pd.DataFrame:
+    """Every dot of a rendered rig set in every image, as :func:`render_rig_set` drew it (:func:`rig_views`):
+    ``sequence, position, view, row, col, w1, w2`` [px] (the true centre), ``visible`` (:func:`visible_dots`, for
+    the camera the set was rendered with, its streaks and bright region too), ``z_mm`` (rig frame, the focal
+    plane at 0) and, for a known target, ``x_mm, y_mm`` (its place on the target)."""
+    rig = rig_from_dict(cal.meta["simulator"]["microscope"])
+    deg = set_camera(cal)
+    frames = []
+    for keys, idx, p, axes, diam, side, sensor in rig_views(cal, rig):
+        c, vis = visible_dots(rig, p, axes, diam, side, deg, sensor)
+        f = keys.assign(w1=c[:, 0], w2=c[:, 1], visible=vis, z_mm=p[:, 2])
+        if "x_mm" in cal.points.columns:
+            f["x_mm"], f["y_mm"] = cal.points["x_mm"].to_numpy()[idx], cal.points["y_mm"].to_numpy()[idx]
+        frames.append(f)
     return pd.concat(frames, ignore_index=True)
