@@ -22,7 +22,9 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
    (:func:`slmlab.images.lattice.fit_lattice`), not by their size or shape.
 3. **Markers** (:func:`marker_kind`): candidates off the lattice whose outline is a triangle, a square or a
    square frame around a dot (:func:`polygon_kind`).
-4. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known.
+4. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known:
+   outside the dots, and inside them too where the camera's other images show the same pixel standing out
+   (:func:`camera_hot_pixels`).
 5. **Local search** (:func:`search_missing`): a node the lattice predicts but the sweep missed is searched
    on its own local background by a matched filter of the dots' size, and taken only if it stands out of
    the noise and looks like the plate's own dots.
@@ -43,7 +45,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
-           "marker_kind", "clean_hot_pixels", "search_missing"]
+           "marker_kind", "HOT_IMAGES", "hot_pixels", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
@@ -51,6 +53,8 @@ LOWEST_SIGMA = 3.0
 LEVELS = 6
 #: least normalised cross-correlation with the dots' template of a dot found by the local search
 NCC_MIN = 0.5
+#: a camera's hot pixels are those that stand out in at least this many of its images (:func:`camera_hot_pixels`)
+HOT_IMAGES = 2
 #: the largest side of the reduced image the sweep runs on [px]
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
@@ -549,19 +553,13 @@ def _mad(d: np.ndarray, *, integers: bool) -> float:
     return _median_of_integers(np.abs(twice - m2)) / 2
 
 
-def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
-
-    A pixel is hot if it exceeds all eight neighbours by more than 8 noise σ and by more than their own
-    range (dead: the same, below); if the image has such pixels, adjacent pairs are looked for too
-    (:func:`_hot_pairs`). The noise σ is the robust spread of the image less its 3 × 3 median, over the pixels
-    above the image's black floor (a dark-field image is mostly zeros, which would make it nil). Pixels
-    inside the ``dots`` (first centres ``(n, 2)`` [px], radius ``dot_radius_px``) are left alone: the
-    texture of a real dot is not a hot pixel, and the centre estimators see past a speck on a dot. Only
-    for dots of radius ≥ 2.5 px, whose own peak never stands out of its neighbours like that. Works in the
-    image's own type, so 8- and 16-bit images are not converted."""
-    if dot_radius_px < 2.5:
-        return img, 0
+def hot_pixels(img: np.ndarray) -> np.ndarray:
+    """Flat indices (sorted) of the pixels of ``img`` that stand out like a hot (or dead) pixel, inside the dots
+    too: a pixel exceeding all eight neighbours by more than 8 noise σ and by more than their own range (dead:
+    the same, below), and where the image has such pixels, adjacent pairs (:func:`_hot_pairs`). The noise σ is
+    the robust spread of the image less its 3 × 3 median, over the pixels above the image's black floor (a
+    dark-field image is mostly zeros, which would make it nil). Works in the image's own type, so 8- and 16-bit
+    images are not converted."""
     med = cv2.medianBlur(img, 3)
     sub = med[::4, ::4]
     d = (img[::4, ::4].astype(np.float32) - sub)[sub > sub.min()] if (sub > sub.min()).sum() > 100 else \
@@ -573,18 +571,47 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
     nb, inside = _neighbours(img, ys, xs)
     v = img[ys, xs].astype(np.float64)
     hot = _stand_out(v, nb, inside, sigma)
-    if not hot.any():
+    if hot.any():
+        hot |= _hot_pairs(v, nb, inside, np.sign(v - med[ys, xs].astype(np.float64)), sigma)
+    return np.sort(ys[hot].astype(np.int64) * img.shape[1] + xs[hot])
+
+
+def camera_hot_pixels(flagged: list[np.ndarray]) -> np.ndarray:
+    """A camera's hot pixels: the pixels :func:`hot_pixels` flags in at least :data:`HOT_IMAGES` of its images
+    (``flagged``: each image's flat indices). A hot pixel is the sensor's, in the same place in every image; a
+    dot's texture moves with the plate, and noise seldom stands out twice in one place. Inside a dot a hot
+    pixel stands out of its neighbours only where the dot is flat, so one image alone cannot tell it from the
+    dot's texture (:func:`clean_hot_pixels` leaves it), but the camera's other images can."""
+    if len(flagged) < HOT_IMAGES:
+        return np.empty(0, np.int64)
+    u, count = np.unique(np.concatenate(flagged), return_counts=True)
+    return u[count >= HOT_IMAGES]
+
+
+def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None,
+                     camera: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
+
+    The pixels :func:`hot_pixels` flags, except those inside the ``dots`` (first centres ``(n, 2)`` [px], radius
+    ``dot_radius_px``), and the ``camera``'s known hot pixels (flat indices, :func:`camera_hot_pixels`)
+    wherever they are. In one image a pixel inside a dot is left alone: the texture of a real dot is not a hot
+    pixel (the PIV Challenge's case E: several hundred pixels inside its dots stand out so in each image), and
+    the centre estimators see past most specks on a dot. Only for dots of radius ≥ 2.5 px, whose own peak never
+    stands out of its neighbours like that."""
+    if dot_radius_px < 2.5:
         return img, 0
-    hot |= _hot_pairs(v, nb, inside, np.sign(v - med[ys, xs].astype(np.float64)), sigma)
-    ys, xs = ys[hot], xs[hot]
-    if dots is not None and len(dots):  # outside every dot: farther than its radius from its integer centre
-        d, _ = cKDTree(np.rint(dots)).query(np.column_stack([xs, ys]))
-        keep = d > np.ceil(dot_radius_px)
-        ys, xs = ys[keep], xs[keep]
-    if len(ys) == 0:
-        return img, 0
-    out = img.copy()                           # the 5 × 5 median (a pair's partner does not pull it)
+    flat = hot_pixels(img)
     h, w = img.shape
+    ys, xs = np.divmod(flat, w)
+    if dots is not None and len(dots) and len(flat):  # outside every dot: farther than its radius from its integer centre
+        d, _ = cKDTree(np.rint(dots)).query(np.column_stack([xs, ys]))
+        flat = flat[d > np.ceil(dot_radius_px)]
+    if camera is not None and len(camera):
+        flat = np.union1d(flat, camera[camera < h * w])
+    if len(flat) == 0:
+        return img, 0
+    ys, xs = np.divmod(flat, w)
+    out = img.copy()                           # the 5 × 5 median (a pair's partner does not pull it)
     o = np.arange(-2, 3)
     win = img[np.clip(ys[:, None, None] + o[None, :, None], 0, h - 1), np.clip(xs[:, None, None] + o[None, None, :], 0, w - 1)]
     out[ys, xs] = np.median(win.reshape(len(ys), -1), axis=1).astype(img.dtype)

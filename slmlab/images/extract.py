@@ -173,13 +173,15 @@ def _dot_radius(loc: _Located) -> float:
     return float(np.sqrt(np.median(loc.cand.area[loc.fit.on]) / np.pi))
 
 
-def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | None, two_level: bool) -> _Located:
-    """Steps 1-2 of the module docstring: candidates and lattice, hot pixels, the local search."""
+def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | None, two_level: bool,
+            camera_hot: np.ndarray | None = None) -> _Located:
+    """Steps 1-2 of the module docstring: candidates and lattice, hot pixels (the camera's known ones
+    ``camera_hot`` too, :func:`slmlab.images.dots.camera_hot_pixels`), the local search."""
     loc = _detect_any(img, dark, two_level)
     if loc.fit is None:
         return loc
     radius = _dot_radius(loc)
-    loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on])
+    loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on], camera_hot)
     con = (lambda: loc.con.again(loc.clean)) if loc.hot else (lambda: loc.con)   # taken only if a node is searched
     grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
     loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
@@ -431,7 +433,8 @@ def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *,
 # ------------------------------------------------------------------------------------------ one image
 def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = None, *, method: str = "moments",
                   dark: bool | None = True, dot_diameter_px: float | None = None, anchor: str = "auto",
-                  marker_origin: tuple[int, int] = (2, 2), two_level: bool = False) -> ImageDots:
+                  marker_origin: tuple[int, int] = (2, 2), two_level: bool = False,
+                  camera_hot: np.ndarray | None = None) -> ImageDots:
     """Find, refine and number the dots of a plate in one image (any bit depth; module docstring).
 
     Parameters
@@ -457,19 +460,24 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
     two_level
         a two-level plate (rows alternating between two depths, offset by half a pitch): indices in half
         pitches and a ``level`` per dot.
+    camera_hot
+        the camera's hot pixels (flat indices, :func:`slmlab.images.dots.camera_hot_pixels` of its other
+        images), cleaned wherever they are; without them only those outside the dots are.
     """
     return extract_image_methods(img, rows, cols, methods=(method,), dark=dark, dot_diameter_px=dot_diameter_px,
-                                 anchor=anchor, marker_origin=marker_origin, two_level=two_level)[method]
+                                 anchor=anchor, marker_origin=marker_origin, two_level=two_level,
+                                 camera_hot=camera_hot)[method]
 
 
 def extract_image_methods(img: np.ndarray, rows: int | None = None, cols: int | None = None, *, methods=METHODS,
                           dark: bool | None = True, dot_diameter_px: float | None = None, anchor: str = "auto",
-                          marker_origin: tuple[int, int] = (2, 2), two_level: bool = False) -> dict:
+                          marker_origin: tuple[int, int] = (2, 2), two_level: bool = False,
+                          camera_hot: np.ndarray | None = None) -> dict:
     """:func:`extract_image` (same parameters) by each centre estimator of ``methods``, as a dict from method to
     :class:`ImageDots`, the dots found once: detection, lattice, hot pixels and the local search do not
     depend on the estimator (its centres, what refinement drops and the numbering that follows do)."""
     _check_options(methods, anchor)
-    loc = _locate(img, rows, cols, dark, two_level)
+    loc = _locate(img, rows, cols, dark, two_level, camera_hot)
     if loc.fit is None:
         return {m: _no_lattice(loc) for m in methods}
     anchoring = dict(anchor=anchor, marker_origin=marker_origin, two_level=two_level)
@@ -587,7 +595,7 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> Choice:
     anchoring = {k: kw[k] for k in ("anchor", "marker_origin", "two_level") if k in kw}
     anchoring = {"anchor": "auto", "marker_origin": (2, 2), "two_level": False, **anchoring}
     _check_options(METHODS, anchoring["anchor"])
-    loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"])
+    loc = _locate(img, rows, cols, kw.get("dark", True), anchoring["two_level"], kw.get("camera_hot"))
     if loc.fit is None:
         return Choice("moments", {m: float("nan") for m in METHODS}, _no_lattice(loc), "moments")
     uneven = uneven_background(loc.clean, loc.xy, np.sqrt(loc.area / np.pi), loc.dark)

@@ -12,6 +12,11 @@ How each plate is found
     detectors, :mod:`slmlab.images.boards`), the dots' polarity (``"dots": "dark" | "bright"``, else decided per
     image), and for two-level plates their ``level_offset_mm``.
 
+A camera's hot pixels
+    Each camera's images are read once first: a pixel that stands out of its neighbours in two of them is the
+    sensor's (:func:`slmlab.images.dots.camera_hot_pixels`) and is cleaned in every image, inside the dots too,
+    where one image alone cannot tell it from the dot's texture.
+
 One numbering for the whole set
     The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
     ``cols`` are given and which is wholly in view is numbered by its size; a plate with markers by them (an
@@ -41,19 +46,21 @@ from ..errors import SlmlabError
 from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
-from .dots import read_image
+from .dots import HOT_IMAGES, camera_hot_pixels, hot_pixels, read_image
 from .extract import (AUTO_FIT_SLACK, IMAGE_NAME, ImageDots, choose_method, extract_image, extract_image_methods,
                       report_summary)
 from .tracking import Numbered, track
 
 __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePair", "image_pairs", "extract_set",
-           "STAGE_FILE", "TRACKED"]
+           "STAGE_FILE", "TRACKED", "KEEP_IMAGES_BYTES"]
 
 #: how the notes name an image numbered by tracking (``... by TRACKED (k)``: k images;
 #: :mod:`slmlab.images.tracking`)
 TRACKED = "tracked by the stage motion from the images numbered alone"
 
 STAGE_FILE = "stage.csv"
+#: the images read to find the cameras' hot pixels are kept for their extraction up to this many bytes
+KEEP_IMAGES_BYTES = 256 * 2 ** 20
 
 
 @dataclass(frozen=True)
@@ -270,24 +277,16 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
     """Phase 1: every image read (one size for the set, the size ``meta.json`` gives) and its dots or board
     corners found and, where the image itself allows, numbered; the centre estimator chosen per plate and view
     on its first image where ``method`` is ``'auto'`` (the model fit checked on every image, :func:`_fit_or`)."""
-    size = None
     found: list[_Found] = []
     todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
     chosen: dict[tuple[str, str], str] = {}
     runner_up: dict[tuple[str, str], str] = {}
+    hot, kept = _camera_hot(todo, specs, image_size, notes)
     for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
-        img = read_image(path)
-        if size is None:
-            size = img.shape
-            if (img.shape[1], img.shape[0]) != image_size:
-                raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but meta.json's image_size_px is "
-                                  f"{image_size[0]} × {image_size[1]}; correct image_size_px", path)
-        elif img.shape != size:
-            raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are {size[1]} × {size[0]} px; "
-                              "all images of a set must have one size", path)
+        img = kept.pop(path) if path in kept else _read_sized(path, image_size, path == todo[0][2])
         spec = specs["grid" if pr.sequence == "grid" else "moving"]
         if spec.pattern == "dots":
-            kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2)
+            kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2, camera_hot=hot[side])
             if method == "auto" and (spec.name, side) not in chosen:
                 chosen[(spec.name, side)], res, dots, runner_up[(spec.name, side)] = choose_method(
                     img, spec.rows, spec.cols, **kw)
@@ -311,6 +310,41 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
 
 
 _VIEW = {"l": "left", "r": "right"}
+
+
+def _read_sized(path: Path, image_size: tuple, first: bool) -> np.ndarray:
+    """An image of the set, which must have the size ``meta.json`` gives (``image_size_px``), as the ``first``
+    image read did (else the others did)."""
+    img = read_image(path)
+    w, h = image_size
+    if (img.shape[1], img.shape[0]) != (w, h) and first:
+        raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but meta.json's image_size_px is {w} × {h}; "
+                          "correct image_size_px", path)
+    if (img.shape[1], img.shape[0]) != (w, h):
+        raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are {w} × {h} px; "
+                          "all images of a set must have one size", path)
+    return img
+
+
+def _camera_hot(todo: list, specs: dict, image_size: tuple, notes: list) -> tuple[dict, dict]:
+    """Each camera's hot pixels (flat indices, :func:`slmlab.images.dots.camera_hot_pixels`) from its images of
+    dot plates: a pixel that stands out in two of them is the sensor's, and is cleaned in every image, inside the
+    dots too (one image alone cannot tell a hot pixel on a dot from the dot's texture). Also the images read
+    for it, by path, as long as they hold at most :data:`KEEP_IMAGES_BYTES` (the rest are read again)."""
+    flagged: dict[str, list] = {"l": [], "r": []}
+    kept, held = {}, 0
+    for pr, side, path in todo:
+        if specs["grid" if pr.sequence == "grid" else "moving"].pattern == "dots":
+            img = _read_sized(path, image_size, not flagged["l"] and not flagged["r"])
+            flagged[side].append(hot_pixels(img))
+            if held + img.nbytes <= KEEP_IMAGES_BYTES:
+                kept[path], held = img, held + img.nbytes
+    hot = {side: camera_hot_pixels(f) for side, f in flagged.items()}
+    for side, h in hot.items():
+        if len(h):
+            notes.append(f"{_VIEW[side]} camera: {len(h)} hot pixel(s) stand out in at least {HOT_IMAGES} of its "
+                         f"{len(flagged[side])} images; cleaned in every image, inside the dots too")
+    return hot, kept
 
 
 def _fit_or(img: np.ndarray, spec: PlateSpec, other: str, kw: dict, path: Path, notes: list) -> ImageDots:
