@@ -377,14 +377,15 @@ def test_an_even_background_is_neither_saturated_nor_streaky():
 def test_a_camera_s_hot_pixels_inside_the_dots_are_cleaned_by_its_other_images():
     """Hot pixels on small bright dots (radius 6 px, 60 grey levels over 13), at the dot's centre, half way out
     or on its edge: one image alone leaves them (a dot's texture stands out like that too), and the point of
-    symmetry of a dot so hit is pulled several times farther than the others'. A second image of the same camera,
-    the plate moved by 9 and 6 px, shows the same pixels standing out: the camera's hot pixels, cleaned wherever
-    they are, and the dots they hit are as near the truth as the rest. A speck on every dot at the same place
-    on the dot moves with the plate and is not taken for the camera's."""
+    symmetry of a dot so hit is pulled several times farther than the others'. The camera's three images, two
+    with the plate in one place and one with it moved by 9 and 6 px, show the same pixels standing out in all
+    three: the camera's hot pixels, cleaned wherever they are, and the dots they hit are as near the truth as the
+    rest. A speck on every dot at the same place on the dot stands out in the two images of the plate in one
+    place only, and is not taken for the camera's (:data:`slmlab.images.dots.HOT_SHARE`)."""
     xy, cov, _ = _synthetic_plate(n=6, pitch=40, radius=6.0, blur=1.0, size=300, seed=3)
     shift = np.array([9, 6])
     images = []
-    for seed, (c, t) in enumerate([(cov, xy), (np.roll(cov, (shift[1], shift[0]), axis=(0, 1)), xy + shift)]):
+    for seed, (c, t) in enumerate([(cov, xy), (cov, xy), (np.roll(cov, (shift[1], shift[0]), axis=(0, 1)), xy + shift)]):
         img = np.clip(np.rint(13 + 60 * c + np.random.default_rng(seed).normal(0, 1.5, c.shape)), 0, 255)
         speck = np.rint(t + [2, -1]).astype(int)
         img[speck[:, 1], speck[:, 0]] = np.maximum(img[speck[:, 1], speck[:, 0]], 90)   # the dots' texture
@@ -396,16 +397,17 @@ def test_a_camera_s_hot_pixels_inside_the_dots_are_cleaned_by_its_other_images()
 
 
 def _hot_pixels_on_dots(clean_images, xy, hit, edge, angle):
-    from slmlab.images.dots import camera_hot_pixels, hot_pixels
+    """The dots ``hit`` of ``clean_images[0]`` (true centres ``xy``) with a hot pixel ``edge`` radii out from
+    their centres in the direction ``angle``, the same pixels hot in every image."""
+    from slmlab.images.dots import camera_hot_pixels, clean_hot_pixels, hot_pixels
     images = [img.copy() for img in clean_images]
     px = np.rint(xy[hit] + edge * 6.0 * np.column_stack([np.cos(angle), np.sin(angle)])).astype(int)
     for img in images:
         img[px[:, 1], px[:, 0]] = 200
-    camera = camera_hot_pixels([hot_pixels(img) for img in images])
-    w = images[0].shape[1]
-    assert set(px[:, 1] * w + px[:, 0]) <= set(camera), edge
+    camera = camera_hot_pixels([hot_pixels(img) for img in images], images[0].shape)
+    assert camera[px[:, 1], px[:, 0]].all(), edge
     speck = np.rint(xy + [2, -1]).astype(int)
-    assert not np.isin(speck[:, 1] * w + speck[:, 0], camera).any()
+    assert not camera[speck[:, 1], speck[:, 0]].any()
 
     def errors(**kw):
         got = extract_image(images[0], 6, 6, method="symmetry", dark=False, **kw).table[["w1", "w2"]].to_numpy()
@@ -417,6 +419,8 @@ def _hot_pixels_on_dots(clean_images, xy, hit, edge, angle):
     alone, known = errors(), errors(camera_hot=camera)
     assert alone[0] > 2 * alone[1], (edge, alone)
     assert known[0] < 1.2 * known[1], (edge, known)
+    with pytest.raises(slmlab.SlmlabError, match="hot-pixel mask"):
+        clean_hot_pixels(images[0], 6.0, xy, camera[1:])
 
 
 def test_the_local_search_finds_dots_beside_a_saturated_streak():

@@ -45,7 +45,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
-           "marker_kind", "HOT_IMAGES", "hot_pixels", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
+           "marker_kind", "HOT_SHARE", "hot_pixels", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
@@ -53,8 +53,11 @@ LOWEST_SIGMA = 3.0
 LEVELS = 6
 #: least normalised cross-correlation with the dots' template of a dot found by the local search
 NCC_MIN = 0.5
-#: a camera's hot pixels are those that stand out in at least this many of its images (:func:`camera_hot_pixels`)
-HOT_IMAGES = 2
+#: a camera's hot pixels are those that stand out in at least this share of its images, and in two
+#: (:func:`camera_hot_pixels`; case E's Z stacks, seven planes: pixels standing out in all seven lie on a dot 0.5-1 %
+#: of the time, a dot covering 7-8 % of the image; in two to four of them 18-41 %, the dots' texture in
+#: neighbouring planes, where the dots barely move)
+HOT_SHARE = 0.75
 #: the largest side of the reduced image the sweep runs on [px]
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
@@ -576,16 +579,20 @@ def hot_pixels(img: np.ndarray) -> np.ndarray:
     return np.sort(ys[hot].astype(np.int64) * img.shape[1] + xs[hot])
 
 
-def camera_hot_pixels(flagged: list[np.ndarray]) -> np.ndarray:
-    """A camera's hot pixels: the pixels :func:`hot_pixels` flags in at least :data:`HOT_IMAGES` of its images
-    (``flagged``: each image's flat indices). A hot pixel is the sensor's, in the same place in every image; a
-    dot's texture moves with the plate, and noise seldom stands out twice in one place. Inside a dot a hot
-    pixel stands out of its neighbours only where the dot is flat, so one image alone cannot tell it from the
-    dot's texture (:func:`clean_hot_pixels` leaves it), but the camera's other images can."""
-    if len(flagged) < HOT_IMAGES:
-        return np.empty(0, np.int64)
+def camera_hot_pixels(flagged: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
+    """A camera's hot pixels, a boolean mask of its images' ``shape`` ``(h, w)``: the pixels :func:`hot_pixels`
+    flags (``flagged``: each image's flat indices, row × w + column) in at least :data:`HOT_SHARE` of its images,
+    and in two. A hot pixel is the sensor's and stands out in every image but where a dot's edge hides it; a
+    dot's texture moves with the plate. Inside a dot a hot pixel and the dot's texture look alike in one image
+    (:func:`clean_hot_pixels` leaves both there), the camera's other images tell them apart. Not where the
+    plate stays put in most of the images (repeated exposures, a Z stack whose dots do not move in the image):
+    its dots' texture then stands out in the same places too and is replaced as the camera's."""
+    mask = np.zeros(shape, bool)
+    if len(flagged) < 2:
+        return mask
     u, count = np.unique(np.concatenate(flagged), return_counts=True)
-    return u[count >= HOT_IMAGES]
+    mask.flat[u[count >= max(2.0, HOT_SHARE * len(flagged))]] = True
+    return mask
 
 
 def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | None = None,
@@ -593,11 +600,14 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
     """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
 
     The pixels :func:`hot_pixels` flags, except those inside the ``dots`` (first centres ``(n, 2)`` [px], radius
-    ``dot_radius_px``), and the ``camera``'s known hot pixels (flat indices, :func:`camera_hot_pixels`)
-    wherever they are. In one image a pixel inside a dot is left alone: the texture of a real dot is not a hot
+    ``dot_radius_px``), and the ``camera``'s known hot pixels (a mask of the image's shape,
+    :func:`camera_hot_pixels`) wherever they are. In one image a pixel inside a dot is left alone: the texture of a real dot is not a hot
     pixel (the PIV Challenge's case E: several hundred pixels inside its dots stand out so in each image), and
     the centre estimators see past most specks on a dot. Only for dots of radius ≥ 2.5 px, whose own peak never
     stands out of its neighbours like that."""
+    if camera is not None and camera.shape != img.shape:
+        raise SlmlabError(f"the camera's hot-pixel mask is {camera.shape[1]} × {camera.shape[0]} px but the image "
+                          f"{img.shape[1]} × {img.shape[0]} px; take the mask from images of this camera")
     if dot_radius_px < 2.5:
         return img, 0
     flat = hot_pixels(img)
@@ -606,8 +616,8 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
     if dots is not None and len(dots) and len(flat):  # outside every dot: farther than its radius from its integer centre
         d, _ = cKDTree(np.rint(dots)).query(np.column_stack([xs, ys]))
         flat = flat[d > np.ceil(dot_radius_px)]
-    if camera is not None and len(camera):
-        flat = np.union1d(flat, camera[camera < h * w])
+    if camera is not None:
+        flat = np.union1d(flat, np.flatnonzero(camera))
     if len(flat) == 0:
         return img, 0
     ys, xs = np.divmod(flat, w)

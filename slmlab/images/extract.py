@@ -461,8 +461,8 @@ def extract_image(img: np.ndarray, rows: int | None = None, cols: int | None = N
         a two-level plate (rows alternating between two depths, offset by half a pitch): indices in half
         pitches and a ``level`` per dot.
     camera_hot
-        the camera's hot pixels (flat indices, :func:`slmlab.images.dots.camera_hot_pixels` of its other
-        images), cleaned wherever they are; without them only those outside the dots are.
+        the camera's hot pixels (a boolean mask of the image's shape, :func:`slmlab.images.dots.camera_hot_pixels`
+        of its images), cleaned wherever they are; without it only those outside the dots are.
     """
     return extract_image_methods(img, rows, cols, methods=(method,), dark=dark, dot_diameter_px=dot_diameter_px,
                                  anchor=anchor, marker_origin=marker_origin, two_level=two_level,

@@ -13,9 +13,10 @@ How each plate is found
     image), and for two-level plates their ``level_offset_mm``.
 
 A camera's hot pixels
-    Each camera's images are read once first: a pixel that stands out of its neighbours in two of them is the
-    sensor's (:func:`slmlab.images.dots.camera_hot_pixels`) and is cleaned in every image, inside the dots too,
-    where one image alone cannot tell it from the dot's texture.
+    Each camera's images of dots are read first (and kept for their extraction, as memory allows): a pixel that
+    stands out of its neighbours in most of them is the sensor's (:func:`slmlab.images.dots.camera_hot_pixels`)
+    and is replaced in every image, inside the dots too, where one image alone cannot tell it from the dot's
+    texture.
 
 One numbering for the whole set
     The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
@@ -46,7 +47,7 @@ from ..errors import SlmlabError
 from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
-from .dots import HOT_IMAGES, camera_hot_pixels, hot_pixels, read_image
+from .dots import HOT_SHARE, camera_hot_pixels, hot_pixels, read_image
 from .extract import (AUTO_FIT_SLACK, IMAGE_NAME, ImageDots, choose_method, extract_image, extract_image_methods,
                       report_summary)
 from .tracking import Numbered, track
@@ -59,7 +60,7 @@ __all__ = ["PATTERNS", "PlateSpec", "plate_spec", "check_extractable", "ImagePai
 TRACKED = "tracked by the stage motion from the images numbered alone"
 
 STAGE_FILE = "stage.csv"
-#: the images read to find the cameras' hot pixels are kept for their extraction up to this many bytes
+#: the images read to find the cameras' hot pixels are kept for their extraction up to this many bytes (:class:`_Images`)
 KEEP_IMAGES_BYTES = 256 * 2 ** 20
 
 
@@ -281,9 +282,10 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
     todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
     chosen: dict[tuple[str, str], str] = {}
     runner_up: dict[tuple[str, str], str] = {}
-    hot, kept = _camera_hot(todo, specs, image_size, notes)
+    images = _Images(image_size)
+    hot = _camera_hot(todo, specs, images, notes)
     for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
-        img = kept.pop(path) if path in kept else _read_sized(path, image_size, path == todo[0][2])
+        img = images.read(path)
         spec = specs["grid" if pr.sequence == "grid" else "moving"]
         if spec.pattern == "dots":
             kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2, camera_hot=hot[side])
@@ -312,39 +314,48 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
 _VIEW = {"l": "left", "r": "right"}
 
 
-def _read_sized(path: Path, image_size: tuple, first: bool) -> np.ndarray:
-    """An image of the set, which must have the size ``meta.json`` gives (``image_size_px``), as the ``first``
-    image read did (else the others did)."""
-    img = read_image(path)
-    w, h = image_size
-    if (img.shape[1], img.shape[0]) != (w, h) and first:
-        raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but meta.json's image_size_px is {w} × {h}; "
-                          "correct image_size_px", path)
-    if (img.shape[1], img.shape[0]) != (w, h):
-        raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but the other images are {w} × {h} px; "
-                          "all images of a set must have one size", path)
-    return img
+class _Images:
+    """A set's images as extraction reads them: each checked against ``meta.json``'s ``image_size_px`` (the
+    first read against it, the rest as one size for the set); an image read with ``keep`` is held for the
+    next read of it, up to :data:`KEEP_IMAGES_BYTES` in all (the rest are read again)."""
+
+    def __init__(self, image_size: tuple):
+        self.size, self.first, self.kept, self.held = tuple(image_size), True, {}, 0
+
+    def read(self, path: Path, keep: bool = False) -> np.ndarray:
+        if path in self.kept:
+            img = self.kept.pop(path)
+            self.held -= img.nbytes
+            return img
+        img = read_image(path)
+        w, h = self.size
+        if (img.shape[1], img.shape[0]) != (w, h):
+            why = (f"meta.json's image_size_px is {w} × {h}; correct image_size_px" if self.first else
+                   f"the other images are {w} × {h} px; all images of a set must have one size")
+            raise SlmlabError(f"is {img.shape[1]} × {img.shape[0]} px but {why}", path)
+        self.first = False
+        if keep and self.held + img.nbytes <= KEEP_IMAGES_BYTES:
+            self.kept[path] = img
+            self.held += img.nbytes
+        return img
 
 
-def _camera_hot(todo: list, specs: dict, image_size: tuple, notes: list) -> tuple[dict, dict]:
-    """Each camera's hot pixels (flat indices, :func:`slmlab.images.dots.camera_hot_pixels`) from its images of
-    dot plates: a pixel that stands out in two of them is the sensor's, and is cleaned in every image, inside the
-    dots too (one image alone cannot tell a hot pixel on a dot from the dot's texture). Also the images read
-    for it, by path, as long as they hold at most :data:`KEEP_IMAGES_BYTES` (the rest are read again)."""
+def _camera_hot(todo: list, specs: dict, images: _Images, notes: list) -> dict:
+    """Each camera's hot pixels (a mask, :func:`slmlab.images.dots.camera_hot_pixels`) from its images of dot
+    plates, read first for it (and kept for their extraction): a pixel that stands out in most of them is the
+    sensor's, and is cleaned in every image, inside the dots too (one image alone cannot tell a hot pixel on a
+    dot from the dot's texture)."""
     flagged: dict[str, list] = {"l": [], "r": []}
-    kept, held = {}, 0
     for pr, side, path in todo:
         if specs["grid" if pr.sequence == "grid" else "moving"].pattern == "dots":
-            img = _read_sized(path, image_size, not flagged["l"] and not flagged["r"])
-            flagged[side].append(hot_pixels(img))
-            if held + img.nbytes <= KEEP_IMAGES_BYTES:
-                kept[path], held = img, held + img.nbytes
-    hot = {side: camera_hot_pixels(f) for side, f in flagged.items()}
-    for side, h in hot.items():
-        if len(h):
-            notes.append(f"{_VIEW[side]} camera: {len(h)} hot pixel(s) stand out in at least {HOT_IMAGES} of its "
-                         f"{len(flagged[side])} images; cleaned in every image, inside the dots too")
-    return hot, kept
+            flagged[side].append(hot_pixels(images.read(path, keep=True)))
+    hot = {side: camera_hot_pixels(f, images.size[::-1]) for side, f in flagged.items()}
+    for side, mask in hot.items():
+        if mask.any():
+            notes.append(f"{_VIEW[side]} camera: {int(mask.sum())} hot pixel(s) stand out in at least "
+                         f"{HOT_SHARE:.0%} of its {len(flagged[side])} images of dots; replaced in every image, "
+                         "inside the dots too")
+    return hot
 
 
 def _fit_or(img: np.ndarray, spec: PlateSpec, other: str, kw: dict, path: Path, notes: list) -> ImageDots:
@@ -373,7 +384,7 @@ def _report_notes(found: list[_Found], notes: list) -> None:
         rep = pd.concat([f.dots.report for f in fs], ignore_index=True)
         hot, noise = sum(f.dots.hot_pixels for f in fs), sum(f.dots.noise_blobs for f in fs)
         notes.append(f"plate {name}, {_VIEW[side]} view, {len(fs)} image(s): {report_summary(rep)}; "
-                     f"{noise} one-level noise blobs and {hot} hot pixels ignored")
+                     f"{noise} one-level noise blobs ignored and {hot} hot pixels replaced")
 
 
 def _numbered_alone(found: list[_Found]) -> dict[tuple[str, str], list[Numbered]]:
