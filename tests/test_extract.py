@@ -399,12 +399,12 @@ def test_a_camera_s_hot_pixels_inside_the_dots_are_cleaned_by_its_other_images()
 def _hot_pixels_on_dots(clean_images, xy, hit, edge, angle):
     """The dots ``hit`` of ``clean_images[0]`` (true centres ``xy``) with a hot pixel ``edge`` radii out from
     their centres in the direction ``angle``, the same pixels hot in every image."""
-    from slmlab.images.dots import camera_hot_pixels, clean_hot_pixels, hot_pixels
+    from slmlab.images.dots import camera_hot_pixels, clean_hot_pixels, hot_pixel_flags
     images = [img.copy() for img in clean_images]
     px = np.rint(xy[hit] + edge * 6.0 * np.column_stack([np.cos(angle), np.sin(angle)])).astype(int)
     for img in images:
         img[px[:, 1], px[:, 0]] = 200
-    camera = camera_hot_pixels([hot_pixels(img) for img in images], images[0].shape)
+    camera = camera_hot_pixels([hot_pixel_flags(img) for img in images], images[0].shape)
     assert camera[px[:, 1], px[:, 0]].all(), edge
     speck = np.rint(xy + [2, -1]).astype(int)
     assert not camera[speck[:, 1], speck[:, 0]].any()
@@ -419,8 +419,9 @@ def _hot_pixels_on_dots(clean_images, xy, hit, edge, angle):
     alone, known = errors(), errors(camera_hot=camera)
     assert alone[0] > 2 * alone[1], (edge, alone)
     assert known[0] < 1.2 * known[1], (edge, known)
-    with pytest.raises(slmlab.SlmlabError, match="hot-pixel mask"):
-        clean_hot_pixels(images[0], 6.0, xy, camera[1:])
+    for wrong in (camera[1:], np.flatnonzero(camera)):   # another camera's size; flat indices
+        with pytest.raises(slmlab.SlmlabError, match="hot-pixel mask"):
+            clean_hot_pixels(images[0], 2.0, xy, wrong)
 
 
 def test_the_local_search_finds_dots_beside_a_saturated_streak():

@@ -358,3 +358,25 @@ def test_case_e_calibrated_on_its_extraction_the_default_is_no_worse_than_the_qu
     xyz = ["X_um", "Y_um", "Z_um"]
     assert (t.loc["default", xyz] <= t.loc["quadratic", xyz] * (1 + 1e-9)).all(), t[xyz]
     assert (t.loc["default", xyz] <= 1.15 * t.loc[["direct", "soloff"], xyz].min()).all(), t[xyz]
+
+
+def test_a_set_s_images_are_read_once_checked_and_kept_within_the_budget(tmp_path, monkeypatch):
+    """extract_set's reader: the first image read is checked against meta.json's size, the others as one size
+    for the set; an image read for the cameras' hot pixels is kept for its extraction (read from memory once,
+    then forgotten) while the kept images fit in KEEP_IMAGES_BYTES, and read again beyond it."""
+    from slmlab.images import imageset
+    paths = {}
+    for name, size in (("a", (40, 30)), ("b", (40, 30)), ("c", (30, 40))):
+        paths[name] = tmp_path / f"{name}.png"
+        cv2.imwrite(str(paths[name]), np.full(size, 7, np.uint8))
+    monkeypatch.setattr(imageset, "KEEP_IMAGES_BYTES", 40 * 30)
+    images = imageset._Images((30, 40))
+    with pytest.raises(slmlab.SlmlabError, match="correct image_size_px"):
+        images.read(paths["c"])
+    a = images.read(paths["a"], keep=True)
+    assert images.held == a.nbytes and paths["a"] in images.kept
+    images.read(paths["b"], keep=True)                     # beyond the budget: not kept
+    assert paths["b"] not in images.kept
+    assert images.read(paths["a"]) is a and images.held == 0 and not images.kept
+    with pytest.raises(slmlab.SlmlabError, match="one size"):
+        images.read(paths["c"])

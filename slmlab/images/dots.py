@@ -45,7 +45,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
-           "marker_kind", "HOT_SHARE", "hot_pixels", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
+           "marker_kind", "HOT_SHARE", "hot_pixel_flags", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
@@ -53,10 +53,10 @@ LOWEST_SIGMA = 3.0
 LEVELS = 6
 #: least normalised cross-correlation with the dots' template of a dot found by the local search
 NCC_MIN = 0.5
-#: a camera's hot pixels are those that stand out in at least this share of its images, and in two
-#: (:func:`camera_hot_pixels`; case E's Z stacks, seven planes: pixels standing out in all seven lie on a dot 0.5-1 %
-#: of the time, a dot covering 7-8 % of the image; in two to four of them 18-41 %, the dots' texture in
-#: neighbouring planes, where the dots barely move)
+#: a camera's hot pixels are those that stand out in at least this share of its images, and in two: 2 of 2, 3 of 3
+#: or 4, 6 of 7, 10 of 13 (:func:`camera_hot_pixels`). Case E's Z stacks (seven planes, a dot covering 7-8 % of the
+#: image): pixels standing out in all seven lie on a dot 0.5-1.1 % of the time, in six 5-10 %, in five 12-15 %, in two
+#: to four 18-41 % (the dots' texture in neighbouring planes, where the dots barely move)
 HOT_SHARE = 0.75
 #: the largest side of the reduced image the sweep runs on [px]
 SWEEP_SIDE_PX = 700
@@ -556,7 +556,7 @@ def _mad(d: np.ndarray, *, integers: bool) -> float:
     return _median_of_integers(np.abs(twice - m2)) / 2
 
 
-def hot_pixels(img: np.ndarray) -> np.ndarray:
+def hot_pixel_flags(img: np.ndarray) -> np.ndarray:
     """Flat indices (sorted) of the pixels of ``img`` that stand out like a hot (or dead) pixel, inside the dots
     too: a pixel exceeding all eight neighbours by more than 8 noise σ and by more than their own range (dead:
     the same, below), and where the image has such pixels, adjacent pairs (:func:`_hot_pairs`). The noise σ is
@@ -580,12 +580,12 @@ def hot_pixels(img: np.ndarray) -> np.ndarray:
 
 
 def camera_hot_pixels(flagged: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
-    """A camera's hot pixels, a boolean mask of its images' ``shape`` ``(h, w)``: the pixels :func:`hot_pixels`
+    """A camera's hot pixels, a boolean mask of its images' ``shape`` ``(h, w)``: the pixels :func:`hot_pixel_flags`
     flags (``flagged``: each image's flat indices, row × w + column) in at least :data:`HOT_SHARE` of its images,
     and in two. A hot pixel is the sensor's and stands out in every image but where a dot's edge hides it; a
     dot's texture moves with the plate. Inside a dot a hot pixel and the dot's texture look alike in one image
     (:func:`clean_hot_pixels` leaves both there), the camera's other images tell them apart. Not where the
-    plate stays put in most of the images (repeated exposures, a Z stack whose dots do not move in the image):
+    plate stays put in three quarters of the images (repeated exposures, a Z stack whose dots do not move in the image):
     its dots' texture then stands out in the same places too and is replaced as the camera's."""
     mask = np.zeros(shape, bool)
     if len(flagged) < 2:
@@ -599,18 +599,18 @@ def clean_hot_pixels(img: np.ndarray, dot_radius_px: float, dots: np.ndarray | N
                      camera: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """The image with hot (and dead) pixels replaced by the median of their 5 × 5 neighbourhood, and how many.
 
-    The pixels :func:`hot_pixels` flags, except those inside the ``dots`` (first centres ``(n, 2)`` [px], radius
+    The pixels :func:`hot_pixel_flags` flags, except those inside the ``dots`` (first centres ``(n, 2)`` [px], radius
     ``dot_radius_px``), and the ``camera``'s known hot pixels (a mask of the image's shape,
     :func:`camera_hot_pixels`) wherever they are. In one image a pixel inside a dot is left alone: the texture of a real dot is not a hot
     pixel (the PIV Challenge's case E: several hundred pixels inside its dots stand out so in each image), and
     the centre estimators see past most specks on a dot. Only for dots of radius ≥ 2.5 px, whose own peak never
     stands out of its neighbours like that."""
-    if camera is not None and camera.shape != img.shape:
-        raise SlmlabError(f"the camera's hot-pixel mask is {camera.shape[1]} × {camera.shape[0]} px but the image "
-                          f"{img.shape[1]} × {img.shape[0]} px; take the mask from images of this camera")
+    if camera is not None and np.shape(camera) != img.shape:
+        raise SlmlabError(f"the camera's hot-pixel mask has shape {np.shape(camera)} but the image {img.shape}; take "
+                          "the mask (camera_hot_pixels) from images of this camera")
     if dot_radius_px < 2.5:
         return img, 0
-    flat = hot_pixels(img)
+    flat = hot_pixel_flags(img)
     h, w = img.shape
     ys, xs = np.divmod(flat, w)
     if dots is not None and len(dots) and len(flat):  # outside every dot: farther than its radius from its integer centre

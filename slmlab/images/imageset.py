@@ -14,9 +14,9 @@ How each plate is found
 
 A camera's hot pixels
     Each camera's images of dots are read first (and kept for their extraction, as memory allows): a pixel that
-    stands out of its neighbours in most of them is the sensor's (:func:`slmlab.images.dots.camera_hot_pixels`)
-    and is replaced in every image, inside the dots too, where one image alone cannot tell it from the dot's
-    texture.
+    stands out of its neighbours in three quarters of them, and in two, is the sensor's
+    (:func:`slmlab.images.dots.camera_hot_pixels`) and is replaced in each of them, inside the dots too, where one
+    image alone cannot tell it from the dot's texture (where the dots are found and at least 2.5 px in radius).
 
 One numbering for the whole set
     The same dot gets the same ``[row, col]`` in every image and in both views. A plate whose ``rows`` and
@@ -47,7 +47,7 @@ from ..errors import SlmlabError
 from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
-from .dots import HOT_SHARE, camera_hot_pixels, hot_pixels, read_image
+from .dots import HOT_SHARE, camera_hot_pixels, hot_pixel_flags, read_image
 from .extract import (AUTO_FIT_SLACK, IMAGE_NAME, ImageDots, choose_method, extract_image, extract_image_methods,
                       report_summary)
 from .tracking import Numbered, track
@@ -283,10 +283,16 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
     chosen: dict[tuple[str, str], str] = {}
     runner_up: dict[tuple[str, str], str] = {}
     images = _Images(image_size)
-    hot = _camera_hot(todo, specs, images, notes)
+    hot, counts = _camera_hot(todo, specs, images)
+    for side, mask in hot.items():
+        if mask.any():
+            notes.append(f"{_VIEW[side]} camera: {int(mask.sum())} hot pixel(s) stand out in at least "
+                         f"{max(2, int(np.ceil(HOT_SHARE * counts[side])))} of its {counts[side]} images of dots; "
+                         "replaced in those images, inside the dots too (where the dots are found and at least 2.5 px "
+                         "in radius)")
     for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
         img = images.read(path)
-        spec = specs["grid" if pr.sequence == "grid" else "moving"]
+        spec = _spec(specs, pr)
         if spec.pattern == "dots":
             kw = dict(dark=spec.dark, marker_origin=spec.marker_origin, two_level=spec.levels == 2, camera_hot=hot[side])
             if method == "auto" and (spec.name, side) not in chosen:
@@ -340,22 +346,22 @@ class _Images:
         return img
 
 
-def _camera_hot(todo: list, specs: dict, images: _Images, notes: list) -> dict:
+def _spec(specs: dict, pr: ImagePair) -> PlateSpec:
+    """The plate an image pair shows: the static grid's, or the moving plate's."""
+    return specs["grid" if pr.sequence == "grid" else "moving"]
+
+
+def _camera_hot(todo: list, specs: dict, images: _Images) -> tuple[dict, dict]:
     """Each camera's hot pixels (a mask, :func:`slmlab.images.dots.camera_hot_pixels`) from its images of dot
-    plates, read first for it (and kept for their extraction): a pixel that stands out in most of them is the
-    sensor's, and is cleaned in every image, inside the dots too (one image alone cannot tell a hot pixel on a
-    dot from the dot's texture)."""
-    flagged: dict[str, list] = {"l": [], "r": []}
+    plates, each read once for it (and kept for its extraction), and how many images that was per camera: a pixel
+    that stands out in three quarters of them is the sensor's, and is replaced in each, inside the dots too (one
+    image alone cannot tell a hot pixel on a dot from the dot's texture)."""
+    flagged: dict[str, dict] = {"l": {}, "r": {}}
     for pr, side, path in todo:
-        if specs["grid" if pr.sequence == "grid" else "moving"].pattern == "dots":
-            flagged[side].append(hot_pixels(images.read(path, keep=True)))
-    hot = {side: camera_hot_pixels(f, images.size[::-1]) for side, f in flagged.items()}
-    for side, mask in hot.items():
-        if mask.any():
-            notes.append(f"{_VIEW[side]} camera: {int(mask.sum())} hot pixel(s) stand out in at least "
-                         f"{HOT_SHARE:.0%} of its {len(flagged[side])} images of dots; replaced in every image, "
-                         "inside the dots too")
-    return hot
+        if _spec(specs, pr).pattern == "dots" and path not in flagged[side]:
+            flagged[side][path] = hot_pixel_flags(images.read(path, keep=True))
+    hot = {side: camera_hot_pixels(list(f.values()), images.size[::-1]) for side, f in flagged.items()}
+    return hot, {side: len(f) for side, f in flagged.items()}
 
 
 def _fit_or(img: np.ndarray, spec: PlateSpec, other: str, kw: dict, path: Path, notes: list) -> ImageDots:
@@ -500,7 +506,7 @@ def _points_table(pairs: list[ImagePair], found: list[_Found], specs: dict, know
         by_pair.setdefault((f.pair.sequence, f.pair.position), {})[f.side] = f
     for pr in pairs:
         sides = by_pair.get((pr.sequence, pr.position), {})
-        spec = specs["grid" if pr.sequence == "grid" else "moving"]
+        spec = _spec(specs, pr)
         merged = None
         for side in "lr":
             if side not in sides:
