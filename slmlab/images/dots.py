@@ -45,7 +45,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "SWEEP_SIDE_PX", "STREAK_BANDS",
            "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
-           "marker_kind", "HOT_SHARE", "hot_pixel_flags", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
+           "marker_kind", "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
@@ -579,10 +579,16 @@ def hot_pixel_flags(img: np.ndarray) -> np.ndarray:
     return np.sort(ys[hot].astype(np.int64) * img.shape[1] + xs[hot])
 
 
+def hot_images_needed(images: int) -> int:
+    """In how many of a camera's ``images`` a pixel must stand out to be the camera's hot pixel: at least
+    :data:`HOT_SHARE` of them, and two."""
+    return max(2, int(np.ceil(HOT_SHARE * images)))
+
+
 def camera_hot_pixels(flagged: list[np.ndarray], shape: tuple[int, int]) -> np.ndarray:
     """A camera's hot pixels, a boolean mask of its images' ``shape`` ``(h, w)``: the pixels :func:`hot_pixel_flags`
-    flags (``flagged``: each image's flat indices, row × w + column) in at least :data:`HOT_SHARE` of its images,
-    and in two. A hot pixel is the sensor's and stands out in every image but where a dot's edge hides it; a
+    flags (``flagged``: each image's flat indices, row × w + column) in :func:`hot_images_needed` of its images.
+    A hot pixel is the sensor's and stands out in every image but where a dot's edge hides it; a
     dot's texture moves with the plate. Inside a dot a hot pixel and the dot's texture look alike in one image
     (:func:`clean_hot_pixels` leaves both there), the camera's other images tell them apart. Not where the
     plate stays put in three quarters of the images (repeated exposures, a Z stack whose dots do not move in the image):
@@ -591,7 +597,7 @@ def camera_hot_pixels(flagged: list[np.ndarray], shape: tuple[int, int]) -> np.n
     if len(flagged) < 2:
         return mask
     u, count = np.unique(np.concatenate(flagged), return_counts=True)
-    mask.flat[u[count >= max(2.0, HOT_SHARE * len(flagged))]] = True
+    mask.flat[u[count >= hot_images_needed(len(flagged))]] = True
     return mask
 
 

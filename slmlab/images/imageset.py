@@ -47,7 +47,7 @@ from ..errors import SlmlabError
 from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
-from .dots import HOT_SHARE, camera_hot_pixels, hot_pixel_flags, read_image
+from .dots import camera_hot_pixels, hot_images_needed, hot_pixel_flags, read_image
 from .extract import (AUTO_FIT_SLACK, IMAGE_NAME, ImageDots, choose_method, extract_image, extract_image_methods,
                       report_summary)
 from .tracking import Numbered, track
@@ -287,7 +287,7 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
     for side, mask in hot.items():
         if mask.any():
             notes.append(f"{_VIEW[side]} camera: {int(mask.sum())} hot pixel(s) stand out in at least "
-                         f"{max(2, int(np.ceil(HOT_SHARE * counts[side])))} of its {counts[side]} images of dots; "
+                         f"{hot_images_needed(counts[side])} of its {counts[side]} images of dots; "
                          "replaced in those images, inside the dots too (where the dots are found and at least 2.5 px "
                          "in radius)")
     for pr, side, path in tqdm(todo, desc="extracting", unit="image", disable=None if progress is None else not progress):
