@@ -203,15 +203,17 @@ def test_the_direct_model_is_at_most_quadratic_in_depth_where_the_depths_are_kno
     assert (t.loc["auto", ["X_um", "Y_um"]] <= 1.02 * polys).all(), t[["X_um", "Y_um", "Z_um"]]
 
 
-@pytest.mark.parametrize("rig, design, seed", [("stereo-dic", "two-level-2z", 1), ("stereo-dic", "two-level-2z", 2),
-                                               ("greenough:2", "zstack-3", 1)])
+@pytest.mark.parametrize("rig, design, seed", [("stereo-dic", "two-level-2z", 1), ("greenough:2", "zstack-3", 1),
+                                               ("stereo-dic", "zstack-3", 1)])
 def test_in_z_a_candidate_pays_half_its_difference_from_the_pinhole(rig, design, seed):
     """Few depths, the pinhole pair judging: in Z a candidate's difference from it between the depths is the two
     models' together, and half of it counts as the candidate's error. Without it, the polynomial of degree 4 took
     Z on the stereo-DIC two-level plate at two positions (held-out 4.50 um against the pinhole's 4.52, 3.1 um apart
     between the depths) at 1.24x the best candidate inside the volume and 1.12x the best plain polynomial, and
-    the cubic took a Greenough stack of three planes (greenough:2) at 1.21x and 1.17x. Now the default's Z is
-    within 5 % of its best candidate and no worse than the best plain polynomial (held against the truth)."""
+    the cubic took a Greenough stack of three planes (greenough:2) at 1.21x and 1.17x. Charged the whole
+    difference, the pinhole's own bend took Z from the direct model on the stereo-DIC rig's three planes at 1.07x.
+    Now the default's Z is within 5 % of its best candidate and no worse than the best plain polynomial in all
+    three (held against the truth)."""
     t = _table(rig, design, seed)
     assert t.attrs["selection"]["between_depths_mm"]  # the pinhole judged
     cands = t.drop(index=["floor", "frame floor", "auto"])

@@ -49,7 +49,7 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    3.1 µm apart between the depths) took Z on a stereo-DIC two-level plate at two positions at 1.24x the best
    candidate inside the volume (1.0x with it), and the cubic a Greenough Z stack of three planes at 1.21x
    (``greenough:2``; 1.0x); with the whole difference, the pinhole's own bend took Z from the direct model on the
-   stereo-DIC rig's three planes at 1.08x it (notebook 11). At 1.5 times, a cubic 5.7 µm from the pinhole against
+   stereo-DIC rig's three planes at 1.07x it (notebook 11). At 1.5 times, a cubic 5.7 µm from the pinhole against
    held-out errors of 4.4 µm stayed, on a stereo-DIC two-level plate in one pose, at 1.10x the pinhole inside
    the volume. On a stereo-DIC pair
    calibrated on two planes, a model linear in depth puts the midplane 30 µm off in Z against a 4 µm floor; the
@@ -447,9 +447,9 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     optics, whatever the stage's errors) or its held-out error in X and Y within :data:`MARGIN` of the best
     candidate's. Perspective sets its bend, and a candidate's difference from it there is an error the user
     will see on top of its held-out one: in X and Y they add in quadrature; in Z, where the pinhole's own error
-    between the depths is as large, :data:`PINHOLE_Z_SHARE` of it does, and a candidate is dropped where it
-    differs by more than :data:`PINHOLE_Z_BEND` times the larger held-out error. Otherwise a plain polynomial is
-    dropped where it disagrees with every depth-pinned candidate (direct, soloff) by more than
+    between the depths is as large, :data:`PINHOLE_Z_SHARE` of it adds in quadrature, and a candidate is dropped
+    where it differs by more than :data:`PINHOLE_Z_BEND` times the larger held-out error. Otherwise a plain
+    polynomial is dropped where it disagrees with every depth-pinned candidate (direct, soloff) by more than
     :data:`BETWEEN_DEPTHS` times the larger held-out error (:func:`_drop_if_bent`), and a depth-pinned candidate
     where it disagrees so with every other candidate standing while two of those agree (module docstring,
     step 2)."""
