@@ -40,8 +40,10 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    camera's magnification changes between the planes, and with it the image of every depth between them), and
    a candidate's difference from the pinhole there, net of the affine map between the two (a frame, not a
    bend), is an error a user will see on top of its held-out one: in X and Y each candidate is judged by the
-   two in quadrature. In Z the pinhole's own error between the depths is as large as the differences it would
-   judge (depth is the stereo angle's weak direction): the difference is the two models' together, and a
+   two in quadrature (charged half of it there too, the cubic took Y on the Greenough two-level plate at two
+   positions at 3.5x its best candidate inside the volume, and the polynomial of degree 4 X on
+   ``stereo-dic:1``'s at 1.44x). In Z the pinhole's own error between the depths is as large as the
+   differences it would judge (depth is the stereo angle's weak direction): the difference is the two models' together, and a
    candidate is judged by its held-out error in quadrature with :data:`PINHOLE_Z_SHARE` of it (half: its own
    share), and dropped where it differs from the pinhole by more than :data:`PINHOLE_Z_BEND` times the larger
    held-out error (more than either model's own scatter: one of them bends, and the pinhole's bend is
