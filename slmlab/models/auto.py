@@ -41,13 +41,13 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    a candidate's difference from the pinhole there, net of the affine map between the two (a frame, not a
    bend), is an error a user will see on top of its held-out one: in X and Y each candidate is judged by the
    two in quadrature (charged half of it there too, the cubic took Y on the Greenough two-level plate at two
-   positions at 3.5x its best candidate inside the volume, and the polynomial of degree 4 X on
-   ``stereo-dic:1``'s at 1.44x). In Z the pinhole's own error between the depths is as large as the
-   differences it would judge (depth is the stereo angle's weak direction): the difference is the two models' together, and a
-   candidate is judged by its held-out error in quadrature with :data:`PINHOLE_Z_SHARE` of it (half: its own
-   share), and dropped where it differs from the pinhole by more than :data:`PINHOLE_Z_BEND` times the larger
-   held-out error (more than either model's own scatter: one of them bends, and the pinhole's bend is
-   perspective's). Without its share in Z, the polynomial of degree 4 (held-out Z 4.50 µm, the pinhole 4.52,
+   positions at 3.5x its best candidate inside the volume, and the polynomial of degree 4 X on ``stereo-dic:1``'s at
+   1.44x). In Z the pinhole's own error between the depths is as large as the differences it would judge (depth is
+   the stereo angle's weak direction): the difference is the two models' together, and a candidate is judged by its
+   held-out error in quadrature with :data:`PINHOLE_Z_SHARE` of it (half: its own share), and dropped where it
+   differs from the pinhole by more than :data:`PINHOLE_Z_BEND` times the larger held-out error (more than either
+   model's own scatter: one of them bends, and the pinhole's bend is perspective's). Without its share in Z, the
+   polynomial of degree 4 (held-out Z 4.50 µm, the pinhole 4.52,
    3.1 µm apart between the depths) took Z on a stereo-DIC two-level plate at two positions at 1.24x the best
    candidate inside the volume (1.0x with it), and the cubic a Greenough Z stack of three planes at 1.21x
    (``greenough:2``; 1.0x); with the whole difference, the pinhole's own bend took Z from the direct model on the
