@@ -47,12 +47,12 @@ model for, a plain least-squares polynomial in the four image coordinates may be
    held-out error in quadrature with :data:`PINHOLE_Z_SHARE` of it (half: its own share), and dropped where it
    differs from the pinhole by more than :data:`PINHOLE_Z_BEND` times the larger held-out error (more than either
    model's own scatter: one of them bends, and the pinhole's bend is perspective's). Without its share in Z, the
-   polynomial of degree 4 (held-out Z 4.50 µm, the pinhole 4.52,
-   3.1 µm apart between the depths) took Z on a stereo-DIC two-level plate at two positions at 1.24x the best
-   candidate inside the volume (1.0x with it), and the cubic a Greenough Z stack of three planes at 1.21x
-   (``greenough:2``; 1.0x); with the whole difference, the pinhole's own bend took Z from the direct model on the
-   stereo-DIC rig's three planes at 1.07x it (notebook 11), and on the PIV Challenge's case E (its picks on four
-   planes) from the quadratic at 1.08x it on the other planes (with half, the quadratic stays: notebook 10).
+   polynomial of degree 4 (held-out Z 4.50 µm, the pinhole 4.52, 3.1 µm apart between the depths) took Z on a
+   stereo-DIC two-level plate at two positions at 1.24x the best candidate inside the volume (1.0x with it), and
+   the cubic a Greenough Z stack of three planes at 1.21x (``greenough:2``; 1.0x); with the whole difference, the
+   pinhole's own bend took Z from the direct model on the stereo-DIC rig's three planes at 1.07x it (notebook 11),
+   and on the PIV Challenge's case E (its picks on four planes) from the quadratic at 1.08x it on the other planes
+   (with half, the quadratic stays: notebook 10).
    At 1.5 times, a cubic 5.7 µm from the pinhole against held-out errors of 4.4 µm stayed, on a stereo-DIC
    two-level plate in one pose, at 1.10x the pinhole inside the volume. On a stereo-DIC pair
    calibrated on two planes, a model linear in depth puts the midplane 30 µm off in Z against a 4 µm floor; the
@@ -473,10 +473,10 @@ def _between_depths_guard(pts, world, mode: str, fitted: dict, cv: dict, skipped
     if "pinhole" in cv and (describes or all(cv["pinhole"][k] <= (1 + MARGIN) * min(e[k] for e in cv.values())
                                              for k in (0, 1))):
         gaps = {c: [0.0 if c == "pinhole" else gap(c, "pinhole", k) for k in range(3)] for c in cv}
+        share = (1.0, 1.0, PINHOLE_Z_SHARE)  # X, Y: the whole difference; Z: the candidate's share of it
         for c in cv:
-            judged[c][:2] = [float(np.hypot(e, g)) for e, g in zip(cv[c][:2], gaps[c][:2])]
-            judged[c][2] = float(np.hypot(cv[c][2], PINHOLE_Z_SHARE * gaps[c][2]))  # Z: its share
-            if c != "pinhole":  # and a bend beyond both models' scatter drops it
+            judged[c] = [float(np.hypot(e, s * g)) for e, g, s in zip(cv[c], gaps[c], share)]
+            if c != "pinhole":  # Z: a bend beyond both models' scatter drops it
                 _drop_if_bent(judged, skipped, cv, c, 2, {"pinhole": gaps[c][2]}, depths, PINHOLE_Z_BEND)
         return judged, gaps
     for k in range(3):
