@@ -7,7 +7,8 @@ For one image (8, 12 or 16 bit, any format OpenCV reads, dark dots on a bright p
    (:mod:`slmlab.images.dots`, :mod:`slmlab.images.lattice`); with the polarity unknown both are tried and the
    one whose lattice holds more dots is kept;
 2. hot pixels cleaned, then every lattice node without a dot (over the whole plate where its size is given)
-   searched locally before it is given up (:func:`slmlab.images.dots.search_missing`);
+   searched locally before it is given up (:func:`slmlab.images.dots.search_missing`), one ring of lines at a
+   time outwards from the lattice, each predicted by its model refitted to the dots found so far;
 3. sub-pixel centres (:mod:`slmlab.images.centres`); dots cut by the image edge or off the refitted lattice
    dropped;
 4. the plate's ``[row, col]`` from its markers or its size (:mod:`slmlab.images.lattice`);
@@ -201,28 +202,40 @@ def _search_box(fit: LatticeFit, rows: int | None, cols: int | None) -> int:
 def _recover(contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, margin: float, repeat: bool):
     """Nodes of the box grown by ``grow`` lines without a candidate, searched (:func:`search_missing`) on the
     :class:`Contrast` that ``contrast()`` returns (computed only if a node is searched: the image less its hot
-    pixels takes a new one); with ``repeat``, the box keeps growing by one line while lines yield dots. Returns
-    searched nodes, found mask, positions [px] and significance."""
+    pixels takes a new one), one ring of lines at a time from the box outwards, each predicted by the lattice's
+    model refitted to the dots found so far (a model extrapolated over several lines can miss a dot by more
+    than the search's reach); with ``repeat``, the box keeps growing by one line while lines yield dots.
+    Returns searched nodes, found mask, positions [px] and significance."""
     dots, radius = cand.xy[fit.on], float(np.sqrt(np.median(cand.area[fit.on]) / np.pi))
     done = {tuple(n) for n in fit.node[fit.on]}
-    out, con = [], None
+    out, con, model, ring = [], None, fit.model, 0
     while True:
-        nodes = fit.nodes(grow)
-        p = fit.model.predict(nodes)
+        nodes = fit.nodes(ring)
+        p = model.predict(nodes)
         todo = np.array([tuple(n) not in done for n in nodes]) & inside_image(p, shape, margin)
-        if not todo.any():
+        ok = np.zeros(0, bool)
+        if todo.any():
+            con = contrast() if con is None else con
+            ok, where, sig = search_missing(con, p[todo], fit.tolerance(nodes[todo]), dots, radius, fit.pitch)
+            out.append((nodes[todo], ok, where, sig))
+            done |= {tuple(n) for n in nodes[todo]}
+            if ok.any():
+                model = _refitted(fit, dots, out)
+        more = repeat and ok.any() and ring <= 2 * max(fit.box[1] - fit.box[0], fit.box[3] - fit.box[2])
+        if ring >= grow and not more:
             break
-        con = contrast() if con is None else con
-        ok, where, sig = search_missing(con, p[todo], fit.tolerance(nodes[todo]), dots, radius, fit.pitch)
-        out.append((nodes[todo], ok, where, sig))
-        done |= {tuple(n) for n in nodes[todo]}
-        if not (repeat and ok.any()) or grow > 2 * max(fit.box[1] - fit.box[0], fit.box[3] - fit.box[2]):
-            break
-        grow += 1
+        ring += 1
     if not out:
         return np.empty((0, 2), int), np.empty(0, bool), np.empty((0, 2)), np.empty(0)
     nodes, ok, where, sig = (np.concatenate(x) for x in zip(*out))
     return nodes, ok & _line_supported(nodes, ok, fit.box), where, sig
+
+
+def _refitted(fit: LatticeFit, dots: np.ndarray, searched: list):
+    """The lattice's model refitted to its dots ``dots`` [px] and those the local search has found so far."""
+    ab = np.vstack([fit.node[fit.on]] + [n[ok] for n, ok, _, _ in searched]).astype(float)
+    w = np.vstack([dots] + [w[ok] for _, ok, w, _ in searched])
+    return robust_model(ab, w, fit.pitch, two_level=fit.model.second is not None)[0]
 
 
 def _line_supported(nodes: np.ndarray, ok: np.ndarray, box) -> np.ndarray:

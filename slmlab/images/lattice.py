@@ -5,7 +5,9 @@
    two lattice steps; the lattice grows from it, up to three lines per side at a time while a line holds dots
    at ≥ 30 % of its nodes, under a model refitted each time (:class:`LatticeModel`: affine, then a homography
    plus a quadratic or cubic polynomial of the lattice coordinates, with outliers removed at the end), so
-   that gaps, lost dots and clutter do not stop it. The indices are turned to the plate's own axes
+   that gaps, lost dots and clutter do not stop it. A one-level lattice that holds candidates at the midpoints
+   of a half step is one that skips every other line (they were lost near the seed): it is grown again with
+   the half step (:func:`_half_step`). The indices are turned to the plate's own axes
    (:func:`_unshear`: steep perspective can make a diagonal the shorter step). A **two-level** plate (rows
    alternating between two depths, offset by half a pitch) is one lattice rotated by 45° in the image, whose
    two classes of node parity are the two levels; each level, a plane at its own depth, gets its own model
@@ -392,22 +394,28 @@ def _unshear(nodes: np.ndarray, two_level: bool = False) -> np.ndarray:
     return best
 
 
+#: a grown lattice is taken to skip lines where candidates sit at the midpoints of a half step at ≥ this share of
+#: its nodes (:func:`_half_step`)
+HALF_STEP_SHARE = 0.5
+
+
 def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> LatticeFit | None:
     """Fit a lattice to candidate blobs (``cand``: ``xy`` [px], ``area`` [px²] and ``border``, as
     :class:`slmlab.images.dots.Candidates`; module docstring, step 1), indexed along the plate's axes
     (:func:`_unshear`); ``None`` if no seed is found. ``two_level``: the plate's second level is offset by
-    its parallax (:class:`LatticeModel`)."""
+    its parallax (:class:`LatticeModel`). A one-level lattice that skips every other line (:func:`_half_step`)
+    is grown again from its seed with the half step."""
     use = np.flatnonzero(~cand.border)
     xy, area = cand.xy[use], cand.area[use]
     s = _banded_seed(xy, area)
     if s is None:
         return None
-    h = np.array([[s.u[0], s.v[0], xy[s.k, 0]], [s.u[1], s.v[1], xy[s.k, 1]], [0, 0, 1.0]])
-    start = LatticeModel(h, np.zeros((0, 2)), 0, np.zeros(2), np.ones(2))
-    start.second = start.shifted(s.p) if two_level else None
-    fit = LatticeFit(start, np.zeros((len(xy), 2), int), np.zeros(len(xy), bool), (-1, 1, -1, 1),
-                     float(min(np.hypot(*s.u), np.hypot(*s.v))))
-    ab, j = _grow(fit, xy, area, float(area[s.k]), shape, two_level)
+    for _ in range(3):
+        fit, ab, j = _grown(xy, area, s, shape, two_level)
+        half = None if two_level else _half_step(fit, xy, area, s.k)
+        if half is None:
+            break
+        s = half
     fit.on[j] = True
     fit.node[j] = _unshear(ab, two_level)
     fit.model, _ = robust_model(fit.node[j].astype(float), xy[j], fit.pitch, two_level=two_level)
@@ -419,6 +427,48 @@ def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> Lat
     node[use], on[use] = fit.node, fit.on
     fit.node, fit.on = node, on
     return fit
+
+
+def _grown(xy: np.ndarray, area: np.ndarray, s: _Seed, shape, two_level: bool):
+    """The lattice grown from seed ``s`` (:func:`_grow`), its seed at node ``(0, 0)``: the fit, its nodes and
+    candidates."""
+    h = np.array([[s.u[0], s.v[0], xy[s.k, 0]], [s.u[1], s.v[1], xy[s.k, 1]], [0, 0, 1.0]])
+    start = LatticeModel(h, np.zeros((0, 2)), 0, np.zeros(2), np.ones(2))
+    start.second = start.shifted(s.p) if two_level else None
+    fit = LatticeFit(start, np.zeros((len(xy), 2), int), np.zeros(len(xy), bool), (-1, 1, -1, 1),
+                     float(min(np.hypot(*s.u), np.hypot(*s.v))))
+    ab, j = _grow(fit, xy, area, float(area[s.k]), shape, two_level)
+    return fit, ab, j
+
+
+def _half_step(fit: LatticeFit, xy: np.ndarray, area: np.ndarray, k: int) -> _Seed | None:
+    """A seed with primitive steps if the grown lattice skips every other line. Where every other line of
+    dots was lost around the plate's middle (a window streak over alternate columns, say), the seed's eight
+    neighbours are all found on a lattice twice as wide along a step or a diagonal, and the lattice grows on
+    every other line. If candidates sit at the midpoints of a half step (``u/2``, ``v/2`` or ``(u ± v)/2``)
+    at ≥ :data:`HALF_STEP_SHARE` of the box's nodes, the best such half step replaces a step of seed ``k``
+    (at node ``(0, 0)``; ``None``: the lattice is primitive). One-level plates only: a two-level plate's
+    second level is offset from the midpoints by its parallax."""
+    nodes = fit.nodes().astype(float)
+    at = fit.model.predict(nodes)
+    tree = cKDTree(xy)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    halves = np.array([(0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.5, -0.5)])
+    share = []
+    for h in halves:
+        p = fit.model.predict(nodes + h)
+        inside = np.all((p >= lo) & (p <= hi), axis=1)
+        d, j = tree.query(p[inside])
+        ratio = area[j] / area[k]
+        near = d < 0.2 * np.hypot(*(p - at)[inside].T)
+        share.append(float(np.mean(near & (ratio > 0.25) & (ratio < 4))) if inside.sum() >= 9 else 0.0)
+    best = int(np.argmax(share))
+    if share[best] < HALF_STEP_SHARE:
+        return None
+    o = fit.model.predict(np.zeros((1, 2)))[0]
+    u, v = fit.model.predict(np.array([(1.0, 0.0)]))[0] - o, fit.model.predict(np.array([(0.0, 1.0)]))[0] - o
+    steps = [(u / 2, v), (u, v / 2), ((u + v) / 2, v), ((u - v) / 2, v)][best]
+    return _Seed(k, *steps, np.zeros(2))
 
 
 def _grow(fit: LatticeFit, xy: np.ndarray, area: np.ndarray, ref_area: float, shape, two_level: bool):
