@@ -467,16 +467,18 @@ def test_the_chosen_method_s_dots_are_those_of_extract_image():
         choose_method(img, 7, 7, anchor="corner")
 
 
-def test_a_lattice_whose_alternate_columns_were_lost_near_the_middle_is_not_taken_at_twice_the_pitch():
-    """Every other column of dots lost around the plate's middle (a window streak over alternate columns): the
-    middle's candidates all have their eight neighbours on a lattice twice as wide, and the seed nearest the
-    middle takes it; the candidates at its half steps make the seed's steps primitive, and the lattice holds
-    every candidate."""
+@pytest.mark.parametrize("rows_lost", [5, 10])
+def test_a_lattice_whose_alternate_columns_were_lost_near_the_middle_is_not_taken_at_twice_the_pitch(rows_lost):
+    """Every other column of dots lost around the plate's middle (a window streak over alternate columns), over
+    11 of its 21 rows or all of them: the middle's candidates all have their eight neighbours on a lattice twice
+    as wide, and the seed nearest the middle takes it (231 of the candidates held, at a pitch of 30.5 px); the
+    candidates at its half steps refine it to the primitive lattice, which holds every candidate, also beyond
+    the columns lost over the whole height (a lattice grown again from the seed stopped at them)."""
     from types import SimpleNamespace
     from slmlab.images.lattice import fit_lattice
     a, b = np.meshgrid(np.arange(21), np.arange(21), indexing="ij")
     xy = np.column_stack([300 + 25.5 * a.ravel() + 0.4 * b.ravel(), 200 + 30.5 * b.ravel() - 0.3 * a.ravel()])
-    lost = (np.abs(a.ravel() - 10) <= 5) & (np.abs(b.ravel() - 10) <= 5) & (a.ravel() % 2 == 1)
+    lost = (np.abs(a.ravel() - 10) <= 5) & (np.abs(b.ravel() - 10) <= rows_lost) & (a.ravel() % 2 == 1)
     xy = xy[~lost]
     cand = SimpleNamespace(xy=xy, area=np.full(len(xy), 120.0), border=np.zeros(len(xy), bool))
     fit = fit_lattice(cand, (1000, 1000))
@@ -486,7 +488,7 @@ def test_a_lattice_whose_alternate_columns_were_lost_near_the_middle_is_not_take
 def test_the_local_search_follows_a_distorted_plate_line_by_line_beyond_the_lattice():
     """A 15 × 15 plate under strong barrel distortion whose lattice holds only its middle 5 × 5 dots (the rest
     lost to the sweep, as beside a bright region): predicted by the middle's homography, the dots four and five
-    lines out are 9 and 14 px off, beyond the search's reach (169 of 200 found); searched one ring of lines at a
+    lines out are up to 10 and 15 px off, beyond the search's reach (169 of 200 found); searched one ring of lines at a
     time, each predicted by the model refitted to the dots found so far, all 200 are found."""
     from types import SimpleNamespace
     from slmlab.images.dots import local_contrast, sweep

@@ -21,7 +21,7 @@ The result is an :class:`ImageDots`; a whole set of images is extracted by :mod:
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -33,8 +33,8 @@ from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
 from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrasts, marker_kind, read_image,
                    search_missing, sweep)
-from .lattice import (LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
-                      number_plate, origin_frame, plate_lattice, robust_model)
+from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
+                      number_plate, origin_frame, plate_lattice, robust_model, similar_area)
 
 __all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots",
            "empty_dots_table", "extract_image", "extract_image_methods", "Choice", "choose_method", "report_summary",
@@ -204,38 +204,41 @@ def _recover(contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, marg
     :class:`Contrast` that ``contrast()`` returns (computed only if a node is searched: the image less its hot
     pixels takes a new one), one ring of lines at a time from the box outwards, each predicted by the lattice's
     model refitted to the dots found so far (a model extrapolated over several lines can miss a dot by more
-    than the search's reach); with ``repeat``, the box keeps growing by one line while lines yield dots.
-    Returns searched nodes, found mask, positions [px] and significance."""
+    than the search's reach); a find beyond the box stands only on a line that holds enough of them
+    (:func:`_line_supported`, on all the nodes searched so far). With ``repeat``, the box keeps growing by one
+    line while lines yield dots. Returns searched nodes, found mask, positions [px] and significance."""
     dots, radius = cand.xy[fit.on], float(np.sqrt(np.median(cand.area[fit.on]) / np.pi))
     done = {tuple(n) for n in fit.node[fit.on]}
-    out, con, model, ring = [], None, fit.model, 0
+    out, con, now, ring, found = [], None, fit, 0, np.zeros(0, bool)
     while True:
         nodes = fit.nodes(ring)
-        p = model.predict(nodes)
+        p = now.model.predict(nodes)
         todo = np.array([tuple(n) not in done for n in nodes]) & inside_image(p, shape, margin)
-        ok = np.zeros(0, bool)
+        before = int(found.sum())
         if todo.any():
             con = contrast() if con is None else con
-            ok, where, sig = search_missing(con, p[todo], fit.tolerance(nodes[todo]), dots, radius, fit.pitch)
-            out.append((nodes[todo], ok, where, sig))
+            out.append((nodes[todo], *search_missing(con, p[todo], now.tolerance(nodes[todo]), dots, radius,
+                                                     fit.pitch)))
             done |= {tuple(n) for n in nodes[todo]}
-            if ok.any():
-                model = _refitted(fit, dots, out)
-        more = repeat and ok.any() and ring <= 2 * max(fit.box[1] - fit.box[0], fit.box[3] - fit.box[2])
-        if ring >= grow and not more:
+            searched, hit, where = (np.concatenate([o[i] for o in out]) for i in range(3))
+            found = hit & _line_supported(searched, hit, fit.box)
+            if found.sum() > before:
+                now = replace(fit, model=_refitted(fit, dots, searched[found], where[found]))
+        grew = found.sum() > before and ring <= 2 * max(fit.box[1] - fit.box[0], fit.box[3] - fit.box[2])
+        if ring >= grow and not (repeat and grew):
             break
         ring += 1
     if not out:
         return np.empty((0, 2), int), np.empty(0, bool), np.empty((0, 2)), np.empty(0)
-    nodes, ok, where, sig = (np.concatenate(x) for x in zip(*out))
-    return nodes, ok & _line_supported(nodes, ok, fit.box), where, sig
+    nodes, _, where, sig = (np.concatenate(x) for x in zip(*out))
+    return nodes, found, where, sig
 
 
-def _refitted(fit: LatticeFit, dots: np.ndarray, searched: list):
-    """The lattice's model refitted to its dots ``dots`` [px] and those the local search has found so far."""
-    ab = np.vstack([fit.node[fit.on]] + [n[ok] for n, ok, _, _ in searched]).astype(float)
-    w = np.vstack([dots] + [w[ok] for _, ok, w, _ in searched])
-    return robust_model(ab, w, fit.pitch, two_level=fit.model.second is not None)[0]
+def _refitted(fit: LatticeFit, dots: np.ndarray, nodes: np.ndarray, where: np.ndarray):
+    """The lattice's model refitted to its dots ``dots`` [px] and the local search's finds ``nodes`` at
+    ``where`` [px]."""
+    ab = np.vstack([fit.node[fit.on], nodes]).astype(float)
+    return robust_model(ab, np.vstack([dots, where]), fit.pitch, two_level=fit.model.second is not None)[0]
 
 
 def _line_supported(nodes: np.ndarray, ok: np.ndarray, box) -> np.ndarray:
@@ -320,7 +323,7 @@ def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: La
     a0, a1, b0, b1 = fit.box
     taken[((fit.node[fit.on, 0] - a0 + 2) * (b1 - b0 + 5) + fit.node[fit.on, 1] - b0 + 2)] = True
     inbox = (nodes[j, 0] >= a0) & (nodes[j, 0] <= a1) & (nodes[j, 1] >= b0) & (nodes[j, 1] <= b1)
-    code = np.select([fit.on, cand.border, near & taken[j], near & ((ratio < 0.25) | (ratio > 4)), near & ~inbox],
+    code = np.select([fit.on, cand.border, near & taken[j], near & ~similar_area(ratio, 1.0), near & ~inbox],
                      [0, 1, 2, 3, 4], 5)
     fixed = {1: "touching border", 2: "duplicate: another blob is nearer its node",
              4: "beyond the lattice (a line too sparse to be the plate's)"}
@@ -328,7 +331,7 @@ def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: La
     for k in np.flatnonzero(code > 0):
         c = int(code[k])
         reason[k] = fixed.get(c) or (f"off the lattice ({d[k]:.1f} px from the nearest node)" if c == 5 else
-                                     f"too {'small' if ratio[k] < 0.25 else 'large'} ({ratio[k]:.2g} of the "
+                                     f"too {'small' if ratio[k] < AREA_RANGE[0] else 'large'} ({ratio[k]:.2g} of the "
                                      "dots' median area)")
     return reason, _markers(img, con, cand, fit, reason, ratio)
 

@@ -5,9 +5,9 @@
    two lattice steps; the lattice grows from it, up to three lines per side at a time while a line holds dots
    at ≥ 30 % of its nodes, under a model refitted each time (:class:`LatticeModel`: affine, then a homography
    plus a quadratic or cubic polynomial of the lattice coordinates, with outliers removed at the end), so
-   that gaps, lost dots and clutter do not stop it. A one-level lattice that holds candidates at the midpoints
-   of a half step is one that skips every other line (they were lost near the seed): it is grown again with
-   the half step (:func:`_half_step`). The indices are turned to the plate's own axes
+   that gaps, lost dots and clutter do not stop it. A one-level lattice with candidates at the midpoints of
+   a half step at 30 % of its nodes or more skips every other line (they were lost near the seed): it is refined
+   to the half step and grown on (:func:`_half_step`). The indices are turned to the plate's own axes
    (:func:`_unshear`: steep perspective can make a diagonal the shorter step). A **two-level** plate (rows
    alternating between two depths, offset by half a pitch) is one lattice rotated by 45° in the image, whose
    two classes of node parity are the two levels; each level, a plane at its own depth, gets its own model
@@ -334,8 +334,7 @@ def _assign(fit: LatticeFit, nodes: np.ndarray, tree: cKDTree, area: np.ndarray,
     p = fit.model.predict(nodes)
     d, j = tree.query(p, k=min(3, tree.n))
     d, j = d.reshape(len(p), -1), j.reshape(len(p), -1)
-    ratio = area[np.minimum(j, tree.n - 1)] / ref_area
-    ok = (d < fit.tolerance(nodes)[:, None]) & (ratio > 0.25) & (ratio < 4)
+    ok = (d < fit.tolerance(nodes)[:, None]) & similar_area(area[np.minimum(j, tree.n - 1)], ref_area)
     first = np.argmax(ok, axis=1)
     d, j = d[np.arange(len(p)), first], j[np.arange(len(p)), first]
     hit = np.flatnonzero(ok.any(axis=1) & inside_image(p, shape, 0))
@@ -394,28 +393,47 @@ def _unshear(nodes: np.ndarray, two_level: bool = False) -> np.ndarray:
     return best
 
 
-#: a grown lattice is taken to skip lines where candidates sit at the midpoints of a half step at ≥ this share of
-#: its nodes (:func:`_half_step`)
-HALF_STEP_SHARE = 0.5
+#: a grown lattice is taken to skip every other line where candidates sit at the midpoints of a half step at
+#: ≥ this share of its box's nodes (:func:`_half_step`), as a line beyond the box is the plate's where it holds
+#: dots at ≥ 30 % of its nodes (noise blobs at 0.1 of a step from a third of the midpoints would be hundreds per
+#: lattice cell)
+HALF_STEP_SHARE = 0.3
+#: a candidate's area within this range of times the lattice's reference area is a dot of the plate
+#: (:func:`similar_area`: a frame around a dot shares its centroid)
+AREA_RANGE = (0.25, 4.0)
+
+
+def similar_area(area: np.ndarray, ref_area: float) -> np.ndarray:
+    """Whether each area [px²] is within :data:`AREA_RANGE` times ``ref_area``."""
+    ratio = np.asarray(area, float) / ref_area
+    return (ratio > AREA_RANGE[0]) & (ratio < AREA_RANGE[1])
 
 
 def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> LatticeFit | None:
     """Fit a lattice to candidate blobs (``cand``: ``xy`` [px], ``area`` [px²] and ``border``, as
     :class:`slmlab.images.dots.Candidates`; module docstring, step 1), indexed along the plate's axes
     (:func:`_unshear`); ``None`` if no seed is found. ``two_level``: the plate's second level is offset by
-    its parallax (:class:`LatticeModel`). A one-level lattice that skips every other line (:func:`_half_step`)
-    is grown again from its seed with the half step."""
+    its parallax (:class:`LatticeModel`). A one-level lattice that skips every other line is refined to the
+    half step and grown on (:func:`_half_step`; again while it holds candidates at half steps, up to three
+    times)."""
     use = np.flatnonzero(~cand.border)
     xy, area = cand.xy[use], cand.area[use]
     s = _banded_seed(xy, area)
     if s is None:
         return None
-    for _ in range(3):
-        fit, ab, j = _grown(xy, area, s, shape, two_level)
-        half = None if two_level else _half_step(fit, xy, area, s.k)
-        if half is None:
+    h = np.array([[s.u[0], s.v[0], xy[s.k, 0]], [s.u[1], s.v[1], xy[s.k, 1]], [0, 0, 1.0]])
+    start = LatticeModel(h, np.zeros((0, 2)), 0, np.zeros(2), np.ones(2))
+    start.second = start.shifted(s.p) if two_level else None
+    fit = LatticeFit(start, np.zeros((len(xy), 2), int), np.zeros(len(xy), bool), (-1, 1, -1, 1),
+                     float(min(np.hypot(*s.u), np.hypot(*s.v))))
+    ab, j = _grow(fit, xy, area, float(area[s.k]), shape, two_level)
+    for _ in range(0 if two_level else 3):
+        finer = _half_step(fit, ab, j, xy, area)
+        if finer is None:
             break
-        s = half
+        ab, j = finer
+        fit.model, fit.box = fit_model(ab.astype(float), xy[j]), (*_span(ab[:, 0]), *_span(ab[:, 1]))
+        ab, j = _grow(fit, xy, area, float(np.median(area[j])), shape, two_level)
     fit.on[j] = True
     fit.node[j] = _unshear(ab, two_level)
     fit.model, _ = robust_model(fit.node[j].astype(float), xy[j], fit.pitch, two_level=two_level)
@@ -429,46 +447,40 @@ def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> Lat
     return fit
 
 
-def _grown(xy: np.ndarray, area: np.ndarray, s: _Seed, shape, two_level: bool):
-    """The lattice grown from seed ``s`` (:func:`_grow`), its seed at node ``(0, 0)``: the fit, its nodes and
-    candidates."""
-    h = np.array([[s.u[0], s.v[0], xy[s.k, 0]], [s.u[1], s.v[1], xy[s.k, 1]], [0, 0, 1.0]])
-    start = LatticeModel(h, np.zeros((0, 2)), 0, np.zeros(2), np.ones(2))
-    start.second = start.shifted(s.p) if two_level else None
-    fit = LatticeFit(start, np.zeros((len(xy), 2), int), np.zeros(len(xy), bool), (-1, 1, -1, 1),
-                     float(min(np.hypot(*s.u), np.hypot(*s.v))))
-    ab, j = _grow(fit, xy, area, float(area[s.k]), shape, two_level)
-    return fit, ab, j
+#: the half steps :func:`_half_step` tries, in lattice units, and the matrices taking a node ``(a, b)`` to the
+#: finer lattice of each (steps ``(u/2, v)``, ``(u, v/2)``, ``((u + v)/2, v)``, ``((u − v)/2, v)``)
+_HALVES = np.array([(0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.5, -0.5)])
+_FINER = np.array([[[2, 0], [0, 1]], [[1, 0], [0, 2]], [[2, 0], [-1, 1]], [[2, 0], [1, 1]]])
 
 
-def _half_step(fit: LatticeFit, xy: np.ndarray, area: np.ndarray, k: int) -> _Seed | None:
-    """A seed with primitive steps if the grown lattice skips every other line. Where every other line of
-    dots was lost around the plate's middle (a window streak over alternate columns, say), the seed's eight
-    neighbours are all found on a lattice twice as wide along a step or a diagonal, and the lattice grows on
-    every other line. If candidates sit at the midpoints of a half step (``u/2``, ``v/2`` or ``(u ± v)/2``)
-    at ≥ :data:`HALF_STEP_SHARE` of the box's nodes, the best such half step replaces a step of seed ``k``
-    (at node ``(0, 0)``; ``None``: the lattice is primitive). One-level plates only: a two-level plate's
+def _half_step(fit: LatticeFit, ab: np.ndarray, j: np.ndarray, xy: np.ndarray, area: np.ndarray):
+    """The lattice's nodes ``ab`` and candidates ``j`` on the finer lattice if it skips every other line, else
+    ``None``. Where every other line of dots was lost around the plate's middle (a window streak over alternate
+    columns, say), the seed's eight neighbours are all found on a lattice twice as wide along a step or a
+    diagonal, and the lattice grows on every other line. Where candidates of a dot's area sit within 0.2 of a
+    half step of the midpoints ``(a, b) + h`` (``h``: :data:`_HALVES`) at ≥ :data:`HALF_STEP_SHARE` of the
+    box's nodes whose midpoints lie within the candidates' extent (nine at least), the best half step's finer
+    lattice takes the nodes (:data:`_FINER`) and those candidates. One-level plates only: a two-level plate's
     second level is offset from the midpoints by its parallax."""
     nodes = fit.nodes().astype(float)
-    at = fit.model.predict(nodes)
-    tree = cKDTree(xy)
+    at, tree = fit.model.predict(nodes), cKDTree(xy)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
-    halves = np.array([(0.5, 0.0), (0.0, 0.5), (0.5, 0.5), (0.5, -0.5)])
-    share = []
-    for h in halves:
+    ref, taken = float(np.median(area[j])), np.zeros(len(xy), bool)
+    taken[j] = True
+    found = []
+    for h in _HALVES:
         p = fit.model.predict(nodes + h)
-        inside = np.all((p >= lo) & (p <= hi), axis=1)
-        d, j = tree.query(p[inside])
-        ratio = area[j] / area[k]
-        near = d < 0.2 * np.hypot(*(p - at)[inside].T)
-        share.append(float(np.mean(near & (ratio > 0.25) & (ratio < 4))) if inside.sum() >= 9 else 0.0)
-    best = int(np.argmax(share))
-    if share[best] < HALF_STEP_SHARE:
+        inside = np.flatnonzero(np.all((p >= lo) & (p <= hi), axis=1))
+        d, k = tree.query(p[inside])
+        hit = (d < 0.2 * np.hypot(*(p - at)[inside].T)) & similar_area(area[k], ref) & ~taken[k]
+        found.append((hit.mean() if len(inside) >= 9 else 0.0, nodes[inside[hit]] + h, k[hit]))
+    best = int(np.argmax([f[0] for f in found]))
+    share, mid, k = found[best]
+    if share < HALF_STEP_SHARE:
         return None
-    o = fit.model.predict(np.zeros((1, 2)))[0]
-    u, v = fit.model.predict(np.array([(1.0, 0.0)]))[0] - o, fit.model.predict(np.array([(0.0, 1.0)]))[0] - o
-    steps = [(u / 2, v), (u, v / 2), ((u + v) / 2, v), ((u - v) / 2, v)][best]
-    return _Seed(k, *steps, np.zeros(2))
+    k, first = np.unique(k, return_index=True)
+    finer = np.rint(np.vstack([ab, mid[first]]) @ _FINER[best].T).astype(int)
+    return finer, np.r_[j, k]
 
 
 def _grow(fit: LatticeFit, xy: np.ndarray, area: np.ndarray, ref_area: float, shape, two_level: bool):
