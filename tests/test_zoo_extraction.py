@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
@@ -27,8 +27,8 @@ from slmlab.virtual.designs import simulate_design
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import extraction_by_degradation, plate_in_view_set, rig_extraction_errors
 from slmlab.virtual.floor import fisher_floor, rendered_floor
-from slmlab.virtual.render import (render_board_set, render_plate, render_rig_set, render_set, rendered_truth,
-                                   rig_degradations)
+from slmlab.virtual.render import (Degradations, render_board_set, render_plate, render_rig_set, render_set,
+                                   rendered_truth, rig_degradations)
 from slmlab.virtual.rigs import make_rig, random_rig, rig_by_name
 
 
@@ -107,6 +107,54 @@ def test_rigs_drawn_at_random_have_every_visible_dot_found_and_numbered(rig, deg
     assert row["found_percent"] >= 99 and row["misnumbered"] == 0, row.to_dict()
     assert rms_px is None or row["rms_px"] <= rms_px, row.to_dict()
     assert method is None or row["method"] == method, row.to_dict()
+
+
+@st.composite
+def cameras(draw) -> Degradations:
+    """A camera none of the zoo's tables holds: polarity, bit depth, plate level, contrast and read noise drawn,
+    and each of the other degradations on or off, at a drawn strength (up to the zoo's own strongest)."""
+    dark, bits = draw(st.booleans()), draw(st.sampled_from([8, 8, 12, 16]))
+    scale = 2.0 ** (bits - 8)
+    background = draw(st.floats(120.0, 230.0)) if dark else draw(st.floats(5.0, 40.0))
+    contrast = draw(st.floats(25.0, 150.0))
+    contrast = min(contrast, background - 5.0) if dark else contrast
+    on = lambda lo, hi: draw(st.one_of(st.just(0.0), st.floats(lo, hi)))  # noqa: E731
+    return Degradations(bits=bits, dark=dark, background_dn=background * scale, contrast_dn=contrast * scale,
+                        read_noise_dn=draw(st.floats(0.5, 3.0)) * scale, defocus_px=on(0.5, 5.0),
+                        focus_angle_deg=draw(st.floats(0.0, 180.0)), shot_dn_per_e=on(0.05, 0.5) * scale,
+                        hot_pixel_fraction=on(1e-4, 2e-3), gradient=on(0.05, 0.8),
+                        gradient_angle_deg=draw(st.floats(0.0, 360.0)), vignetting=on(0.05, 0.6),
+                        bright_region=on(0.5, 2.0), streaks=on(0.05, 0.35), text_strip_px=int(on(20.0, 50.0)))
+
+
+#: stereo-piv:11 under such a camera: dark dots at 35 DN, window streaks and a bright region lost every other
+#: column near the plate's middle to the sweep, the lattice grew at twice the pitch and the local search
+#: extrapolated past the columns beside the glare (74.9 % found, one image unnumbered). As drawn: with the levels
+#: rounded to three digits the sweep keeps those columns (99.9 % found without the half step)
+HALF_LOST = Degradations(dark=True, background_dn=143.38601481193888, contrast_dn=35.25487260270841,
+                         defocus_px=2.0954315242596815, focus_angle_deg=27.606120410906463,
+                         read_noise_dn=0.7570208256805201, vignetting=0.2212408791291072,
+                         bright_region=1.5068139281449133, streaks=0.3039790545979545, text_strip_px=36)
+
+
+@pytest.mark.slow  # rigs and cameras drawn at random, rendered and extracted (seconds each)
+@settings(max_examples=max(4, settings.default.max_examples // 10))  # 4 at the quick profile, 30 thorough
+@given(kind=st.sampled_from(["greenough", "stereo-dic", "stereo-piv"]), seed=st.integers(10, 10_000),
+       camera=cameras())
+@example(kind="stereo-piv", seed=11, camera=HALF_LOST)
+def test_a_camera_drawn_at_random_on_a_rig_drawn_at_random_has_every_visible_dot_found_and_numbered(
+        kind, seed, camera, tmp_path_factory):
+    """Every visible dot of the rig's plate (whole in view, two Z positions) found and none numbered wrongly
+    under any camera: the degradations together in any mix, not one at a time as in the zoo's table."""
+    cal = plate_in_view_set(random_rig(kind, seed), seed)
+    d = write_set(tmp_path_factory.mktemp("camera") / "set", cal)
+    render_rig_set(cal, d, camera, progress=False, compress=False)
+    rendered = slmlab.read_set(d)
+    pts, notes = extract_set(d, progress=False)
+    e = rig_extraction_errors(pts, rendered)
+    vis = e[e["visible"]]
+    good = vis["found"] & (np.hypot(vis["err1"], vis["err2"]) < 0.3 * vis["spacing_px"])
+    assert good.mean() >= 0.99 and (vis["found"] & ~good).sum() == 0, (good.mean(), notes)
 
 
 def test_a_plate_cut_by_a_glare_is_numbered_alone_or_not_at_all(tmp_path):
