@@ -41,8 +41,8 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 
-__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "NCC_STRONG", "STRONG_SHARE", "SWEEP_SIDE_PX", "STREAK_BANDS",
-           "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
+__all__ = ["LOWEST_SIGMA", "LEVELS", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA", "STRONG_SHARE", "STRONG_SIGMA",
+           "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
            "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
            "marker_kind", "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
@@ -53,12 +53,18 @@ LOWEST_SIGMA = 3.0
 LEVELS = 6
 #: least normalised cross-correlation with the dots' template of a dot found by the local search
 NCC_MIN = 0.5
-#: the local search also takes a dot at :data:`LOWEST_SIGMA` where it is as strong as this share of the plate's
-#: found dots and correlates with their template by :data:`NCC_STRONG`: the significance is taken over the
-#: spread of a ring of the patch, which is not the camera's noise alone (stereo-piv:5216 under a clean camera,
-#: dots 80 DN over a read noise of 0.5 DN: a row of them at 0.77 of the found dots' strength, NCC 0.89-0.95, at
-#: 4.2-4.8 σ; stereo-piv:11 beside its bright region: 0.67-0.99, NCC 0.89-0.96, 4.1-4.7 σ)
+#: the local search takes a dot whose matched filter peaks at this many times its ring's spread (and at a fifth
+#: of the found dots' median peak)
+SEARCH_SIGMA = 5.0
+#: ... or at :data:`STRONG_SIGMA` only, where it is at least this share of the found dots' median peak and
+#: correlates with their template by :data:`NCC_STRONG`: the ring's spread is not the camera's noise alone
+#: (stereo-piv:5216 under a clean camera, dots 79 DN over a read noise of 0.5 DN: a row of them at 0.77 of the
+#: found dots' strength, NCC 0.89-0.95, at 4.2-4.8 σ; stereo-piv:11 beside its bright region: 0.67-0.99, NCC
+#: 0.89-0.96, 4.1-4.7 σ)
 STRONG_SHARE = 0.5
+#: the least significance of such a strong dot [ring spreads]
+STRONG_SIGMA = 3.0
+#: the least normalised cross-correlation with the dots' template of such a strong dot
 NCC_STRONG = 0.8
 #: a camera's hot pixels are those that stand out in at least this share of its images, and in two: 2 of 2, 3 of 3
 #: or 4, 6 of 7, 10 of 13 (:func:`camera_hot_pixels`). Case E's Z stacks (seven planes, a dot covering 7-8 % of the
@@ -729,24 +735,23 @@ def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: flo
 def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: np.ndarray, radius: float,
                    pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 5) by
-    :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least 5
-    times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px] measured the
-    same way, not on the window's rim (a slope, not a dot), and correlated with the found dots' mean
-    appearance by at least :data:`NCC_MIN` (:func:`_template_match`); or, at :data:`LOWEST_SIGMA` only, as
-    strong as :data:`STRONG_SHARE` of that median and correlated by :data:`NCC_STRONG`. Returns found mask,
-    positions [px] and significance."""
+    :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least
+    :data:`SEARCH_SIGMA` times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px]
+    measured the same way, not on the window's rim (a slope, not a dot), and correlated with the found dots'
+    mean appearance by at least :data:`NCC_MIN` (:func:`_template_match`); or, if at least :data:`STRONG_SIGMA`
+    times its local spread and :data:`STRONG_SHARE` of that median peak, correlated by :data:`NCC_STRONG`.
+    Returns found mask, positions [px] and significance."""
     if len(predicted) == 0:
         return np.empty(0, bool), np.empty((0, 2)), np.empty(0)
     ref_at = dots[np.linspace(0, len(dots) - 1, min(len(dots), 16)).astype(int)]
     ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), float(con.scale)), radius, pitch)
     peak, sig, where = _local_peaks(con, predicted, tol, radius, pitch)
     inner = np.hypot(*(where - predicted).T) < np.maximum(np.asarray(tol) - con.scale, 0.5 * con.scale)
-    plain = (sig >= 5) & (peak >= 0.2 * float(np.median(ref)))
-    strong = (sig >= LOWEST_SIGMA) & (peak >= STRONG_SHARE * float(np.median(ref)))
-    ok = (plain | strong) & inner
+    typical = float(np.median(ref))
+    plain = (sig >= SEARCH_SIGMA) & (peak >= 0.2 * typical)
+    ok = (plain | ((sig >= STRONG_SIGMA) & (peak >= STRONG_SHARE * typical))) & inner
     if ok.any():   # and it looks like the plate's dots (a template of them), not a streak or a glyph
-        ncc = _template_match(con, where[ok], ref_at, radius)
-        ok[ok] = (ncc >= NCC_MIN) & (plain[ok] | (ncc >= NCC_STRONG))
+        ok[ok] = _template_match(con, where[ok], ref_at, radius) >= np.where(plain[ok], NCC_MIN, NCC_STRONG)
     return ok, where, sig
 
 

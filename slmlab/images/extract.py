@@ -33,8 +33,8 @@ from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
 from .dots import (Candidates, Contrast, Marker, clean_hot_pixels, local_contrasts, marker_kind, read_image,
                    search_missing, sweep)
-from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image, lattice_residual_px,
-                      number_plate, origin_frame, plate_lattice, robust_model, similar_area)
+from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
+                      lattice_residual_px, number_plate, origin_frame, plate_lattice, robust_model, similar_area)
 
 __all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots",
            "empty_dots_table", "extract_image", "extract_image_methods", "Choice", "choose_method", "report_summary",
