@@ -341,7 +341,8 @@ def _markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, 
     """The markers among the candidates off the lattice (their ``reason`` set to the marker's kind): solid
     shapes of about a dot's size away from every lattice node (a plate's markers sit in its holes), as plain
     to see as the dots and apart from them (a shape that parallax brings near a dot is seen apart from it
-    only at the higher levels of the sweep), read at their reference level; and thin outlines (a ring, a
+    only at the higher levels of the sweep), read at their reference level, or at half of it where blur rounds
+    a small square's corners there (a dot's outline is an ellipse at any level); and thin outlines (a ring, a
     frame) centred on a dot and larger than it, read at their widest."""
     markers = []
     dd, _ = cKDTree(cand.xy[fit.on]).query(cand.xy)
@@ -355,6 +356,8 @@ def _markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, 
     frames = (cand.hole | outline) & around                                # a frame centred on a dot, larger
     for k in np.flatnonzero((reason != "") & ~cand.border & (shapes | frames)):
         kind = marker_kind(img, con, cand, k, cand.low[k] if frames[k] and not shapes[k] else cand.level[k])
+        if kind is None and shapes[k]:   # a small square's corners rounded by blur at half its peak: lower down
+            kind = marker_kind(img, con, cand, k, cand.level[k] / 2)
         if (kind == "frame" and frames[k]) or (kind in ("triangle", "square") and shapes[k]):
             markers.append(Marker(kind, tuple(cand.xy[k])))
             reason[k] = f"marker: {kind}"
