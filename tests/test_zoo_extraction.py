@@ -229,8 +229,9 @@ def test_a_two_level_plate_s_small_square_is_read_where_blur_rounds_its_corners(
     """The Greenough two-level plate at two positions under a clean camera: its square (0.6 of a dot's diameter a
     side) has its corners rounded by blur at its half-peak outline in one image of four (rectangle fill 0.865
     against the 0.88 a square needs), which was left unnumbered (74.5 % found); read again at half that level
-    (0.907) it is a square. Under the rig's own camera, with shot noise, its outline stays ragged down to a
-    quarter of its peak (0.811-0.835) and that image is still lost: a limit, not tested here."""
+    (0.907) it is a square. Under the rig's own camera, with shot noise, its outline is ragged at its reference
+    level and half of it (0.835, 0.811), a square only at a quarter (0.895), where neighbouring dots may join a
+    shape; that image is still lost: a limit, not tested here."""
     cal = simulate_design(rig_by_name("greenough"), "two-level-2z", seed=1)
     d = write_set(tmp_path / "set", cal)
     render_rig_set(cal, d, rig_degradations("greenough", "clean"), progress=False, compress=False)
