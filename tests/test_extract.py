@@ -512,3 +512,44 @@ def test_the_local_search_follows_a_distorted_plate_line_by_line_beyond_the_latt
     inner = SimpleNamespace(xy=cand.xy[middle], area=cand.area[middle])
     nodes, ok, where, _ = _recover(lambda: con, inner, fit, 5, img.shape, 4.0, False)
     assert ok.sum() == 200 and np.hypot(*(where[ok][:, None] - xy[None]).T).min(axis=0).max() < 2.5
+
+
+def _two_level_points(parallax, lost=(), pitch=60.0, n=13):
+    """Image points of an ``n × n`` two-level plate (pitch [px]) seen in mild perspective: the first level at
+    whole pitches, the second at the cell centres moved by ``parallax`` (in pitches, along the image's x), less
+    the dots at the plate positions ``lost`` (half pitches); and each point's plate position [half pitches]."""
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    first = np.column_stack([2 * i.ravel(), 2 * j.ravel()])
+    second = first[(first[:, 0] < 2 * (n - 1)) & (first[:, 1] < 2 * (n - 1))] + 1
+    half = np.vstack([first, second])
+    keep = ~np.array([tuple(h) in set(lost) for h in half])
+    half = half[keep]
+    plate = half * pitch / 2 + np.where((half[:, 0] % 2 == 1)[:, None], [parallax * pitch, 0.0], 0.0)
+    h = np.array([[1.0, 0.05, 250.0], [0.02, 0.95, 200.0], [2e-5, 4e-5, 1.0]])
+    w = np.column_stack([plate, np.ones(len(plate))]) @ h.T
+    return w[:, :2] / w[:, 2:], half
+
+
+@pytest.mark.parametrize("parallax, lost", [(0.0, ()), (0.12, ()), (0.25, ()), (0.33, ()),
+                                            (0.25, ((13, 11), (11, 13), (12, 14)))])
+def test_a_two_level_lattice_is_fitted_along_the_plate_s_axes_at_any_parallax_the_markers_allow(parallax, lost):
+    """A two-level plate whose second level parallax moves by up to a third of a pitch (beyond it the square
+    marker meets a dot). The seed's steps were taken as half the difference of a dot's opposite neighbours,
+    looked for within 0.6 of a step of the mirror of the nearest: at a quarter of a pitch the mirror falls
+    halfway between two dots and no seed was found ("no dots found"). The other level's four nearest dots are
+    two pairs sharing a midpoint, moved by the parallax, whatever it is. At a quarter pitch a basis sheared by
+    half a cell fits a node's neighbours too; where dots are lost beside the seed (a marker joined to one) it
+    was taken and the plate numbered along a diagonal. The lattice holds the plate but its corners (its lines,
+    the plate's diagonals, hold one or two dots there: the local search finds them), each dot at its plate
+    position up to the plate's symmetry and a shift."""
+    from types import SimpleNamespace
+    from slmlab.images.lattice import fit_lattice, plate_lattice
+    xy, half = _two_level_points(parallax, lost)
+    cand = SimpleNamespace(xy=xy, area=np.full(len(xy), 150.0), border=np.zeros(len(xy), bool))
+    fit = fit_lattice(cand, (1400, 1400), two_level=True)
+    assert fit is not None and fit.on.mean() > 0.85, (None if fit is None else fit.on.sum(), len(xy))
+    pl = plate_lattice(fit.model, fit.node[fit.on], two_level=True)
+    got, truth = np.column_stack([pl.i1, pl.i2]), np.column_stack([half[fit.on], np.ones(int(fit.on.sum()))])
+    m, *_ = np.linalg.lstsq(truth, got, rcond=None)
+    assert np.allclose(np.abs(m[:2]), np.eye(2), atol=1e-6) or np.allclose(np.abs(m[:2]), np.eye(2)[::-1], atol=1e-6), m
+    assert np.allclose(truth @ m, got, atol=1e-6)

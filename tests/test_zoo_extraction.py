@@ -350,3 +350,61 @@ def test_on_rigs_drawn_at_random_the_floor_is_finite_falls_with_noise_and_is_not
     assert good.sum() >= 0.99 * e["visible"].sum()
     rms = np.sqrt(np.mean(np.r_[e.loc[good, "err1"], e.loc[good, "err2"]] ** 2))
     assert rms >= np.sqrt(np.mean(e.loc[good, cols].to_numpy() ** 2)), rms   # no estimator beats it
+
+
+def _two_level_errors(rig, camera, seed, tmp_path):
+    """The two-level plate at two positions (``two-level-2z``) on ``rig`` under ``camera``, rendered and
+    extracted: the notes and the visible dots' errors against the truth (``good``: found at their number)."""
+    cal = simulate_design(rig, "two-level-2z", seed=seed)
+    d = write_set(tmp_path / "set", cal)
+    render_rig_set(cal, d, camera, progress=False, compress=False)
+    pts, notes = extract_set(d, progress=False)
+    errors = rig_extraction_errors(pts, slmlab.read_set(d))
+    vis = errors[errors["visible"]].copy()
+    vis["dist"] = np.hypot(vis["err1"], vis["err2"])
+    vis["good"] = vis["found"] & (vis["dist"] < 0.3 * vis["spacing_px"])
+    return notes, vis
+
+
+@pytest.mark.parametrize("rig", ["stereo-dic", "stereo-piv"])
+def test_a_two_level_plate_whose_parallax_brings_a_dot_beside_the_square_is_read_whole(rig, tmp_path):
+    """The presets' two-level plates under a clean camera, the second level at a quarter pitch's parallax: a
+    second-level dot sits a few pixels from the square marker. Before: the seed was not found ("no dots found"
+    on the stereo-DIC rig, the opposite neighbours' mirror falling halfway between two dots), the reduced image
+    joined the square to the dot (its area 1.6 of a dot's, taken as the dot) or kept it at one sweep level only
+    (noise), the plate's corners (the lattice's lines are its diagonals) were left unsearched, and the dot
+    beside the square was 0.18-0.32 px off, pulled by it. Now every visible dot is found at its number, within
+    0.05 px, and every image is numbered by both markers."""
+    notes, vis = _two_level_errors(rig_by_name(rig), rig_degradations(rig, "clean"), 1, tmp_path)
+    assert any("numbering anchored in 4 image(s) by square and triangle markers" in n for n in notes), notes
+    assert vis["good"].all() and vis["dist"].max() < 0.05, (vis["good"].mean(), vis["dist"].max())
+
+
+#: cameras drawn by the stress of two-level plates under random cameras (random_rig(kind, seed), two-level-2z)
+#: that left images unnumbered: a square joined to a dot at every level of the sweep by 2.6 px of defocus; a
+#: square of 84 px², too small to show its corners; both markers rounded by 4.2 px of defocus into blobs
+TWO_LEVEL_CAMERAS = {
+    ("stereo-dic", 13): Degradations(background_dn=28.54308569538692, contrast_dn=80.94606342291328,
+                                     defocus_px=2.619645637574393, focus_angle_deg=151.78735054256188,
+                                     read_noise_dn=2.28028373434398, vignetting=0.049796550865058915),
+    ("stereo-dic", 12): Degradations(dark=True, background_dn=146.22800615090432, contrast_dn=132.55008480837984,
+                                     focus_angle_deg=87.72051079454454, read_noise_dn=1.7343160336272145,
+                                     hot_pixel_fraction=0.001940411747210212, bright_region=0.9931671696634813),
+    ("greenough", 14): Degradations(dark=True, background_dn=218.7761287683544, contrast_dn=149.0725800521488,
+                                    defocus_px=4.216637312384123, focus_angle_deg=33.09448156460209,
+                                    read_noise_dn=1.778484310124298, bright_region=1.0078436652926719),
+}
+
+
+@pytest.mark.slow  # four images of 2048 × 1536 per case, rendered and extracted
+@pytest.mark.parametrize("kind, seed", list(TWO_LEVEL_CAMERAS))
+def test_a_two_level_plate_s_markers_are_read_where_blur_joins_them_to_a_dot_or_rounds_them(kind, seed, tmp_path):
+    """Two-level plates of random rigs whose markers blur joins to the dot beside them or rounds into blobs
+    (:data:`TWO_LEVEL_CAMERAS`). A marker joined to a dot is read apart at full resolution, at levels up to
+    three quarters of the dots' peak, against the background at each of its pixels (a window streak beside
+    it); a solid blob in a hole whose shape was not read stands for either marker, told apart by its place
+    beside the origin dot and the level whose plane the markers lie on. Every image is numbered, none wrongly,
+    and 99 % of the visible dots are found."""
+    notes, vis = _two_level_errors(random_rig(kind, seed), TWO_LEVEL_CAMERAS[(kind, seed)], seed, tmp_path)
+    assert any("numbering anchored in 4 image(s)" in n for n in notes), notes
+    assert (vis["found"] & ~vis["good"]).sum() == 0 and vis["good"].mean() >= 0.99, vis["good"].mean()

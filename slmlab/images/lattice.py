@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from itertools import permutations
+from itertools import combinations, permutations
 
 import cv2
 import numpy as np
@@ -217,10 +217,48 @@ def _central_steps(tree: cKDTree, xy: np.ndarray, x0: np.ndarray, u: np.ndarray,
     return uc, vc, p
 
 
-def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256) -> _Seed | None:
+#: the 28 pairs of a node's eight nearest neighbours, and the pairs of those pairs that share no neighbour
+_PAIRS = np.array(list(combinations(range(8), 2)))
+_PP = np.array([(i, j) for i, j in combinations(range(len(_PAIRS)), 2) if not set(_PAIRS[i]) & set(_PAIRS[j])])
+
+
+def _cos(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cosine of the angle between the rows of ``a`` and ``b`` ``(n, 2)``."""
+    return (a * b).sum(-1) / np.maximum(np.hypot(*a.T) * np.hypot(*b.T), 1e-9)
+
+
+def _paired_steps(vec: np.ndarray, length: np.ndarray, hypotheses: int = 3):
+    """Steps ``u, v`` and the other level's offset ``p`` (each ``(n, hypotheses, 2)`` [px]) of a two-level
+    plate from the vectors ``vec`` ``(n, 8, 2)`` to each node's eight nearest neighbours (``length``
+    ``(n, 8)``), and whether each was found ``(n, hypotheses)``. The other level's four nearest dots are two
+    opposite pairs about the node moved by the parallax, ``±u + p`` and ``±v + p``: two pairs of neighbours
+    sharing a midpoint (within 0.2 of the nearest neighbour's distance: perspective moves it), with
+    differences 55°-125° apart. The ``hypotheses`` such with the shortest steps are returned, shortest first
+    (the node's own level gives pairs ``±(u ± v)`` about the node; pairs can share a midpoint by chance;
+    :func:`_seed` keeps the one its neighbours confirm). Unlike :func:`_central_steps`, which looks for ``-u``
+    where ``+u`` is mirrored, this holds for any parallax up to half a pitch."""
+    a, b = vec[:, _PAIRS[:, 0]], vec[:, _PAIRS[:, 1]]
+    mid, half = (a + b) / 2, (a - b) / 2
+    size = np.hypot(half[..., 0], half[..., 1])
+    m1, m2, h1, h2 = mid[:, _PP[:, 0]], mid[:, _PP[:, 1]], half[:, _PP[:, 0]], half[:, _PP[:, 1]]
+    s1, s2 = size[:, _PP[:, 0]], size[:, _PP[:, 1]]
+    cos = np.abs((h1 * h2).sum(-1)) / np.maximum(s1 * s2, 1e-9)
+    near = np.hypot(*(m1 - m2).transpose(2, 0, 1)) < 0.2 * length[:, :1]
+    ok = near & (cos < 0.57) & (np.maximum(s1, s2) < 3.0 * np.minimum(s1, s2))
+    cost = np.where(ok, s1 + s2, np.inf)
+    best = np.argsort(cost, axis=1, kind="stable")[:, :hypotheses]
+    rows = np.arange(len(vec))[:, None]
+    return (h1[rows, best], h2[rows, best], (m1[rows, best] + m2[rows, best]) / 2,
+            np.isfinite(cost[rows, best]))
+
+
+def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = False) -> _Seed | None:
     """The candidate whose eight lattice neighbours (±u, ±v, ±u±v) all exist with areas within a factor 2,
     and its steps ``u, v`` [px] (from the nearest neighbour and the nearest one 55°-125° from it, at most
-    three times longer: views down to 20° from the plate; :func:`_central_steps`); among equally supported
+    three times longer: views down to 20° from the plate; :func:`_central_steps`; on a two-level plate the
+    shortest of :func:`_paired_steps`' hypotheses with six, as a lattice of every other node of the plate's
+    has eight; of equally supported seeds those whose plate axes ``u ± v`` are the least sheared, within 0.1
+    in cosine: at a parallax near a quarter pitch a basis sheared by half a cell fits too); among equally supported
     seeds the one nearest their median position. Tried on the ``tries`` candidates nearest the median
     position (a plate's inner dots); ``None`` if none has six."""
     n = len(xy)
@@ -231,26 +269,39 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256) -> _Seed | None:
     _, nn = tree.query(xy[idx], k=min(9, n))
     vec = xy[nn[:, 1:]] - xy[idx, None, :]
     length = np.hypot(vec[..., 0], vec[..., 1])
-    u = vec[:, 0]
-    cos = np.abs((vec * u[:, None, :]).sum(-1)) / np.maximum(length * length[:, :1], 1e-9)
-    ok = (cos < 0.57) & (length < 3.0 * length[:, :1])
-    has_v = ok.any(axis=1)
-    v = vec[np.arange(len(idx)), np.argmax(ok, axis=1)]
-    u, v, p = _central_steps(tree, xy, xy[idx], u, v)
+    if two_level and vec.shape[1] == 8:
+        u, v, p, has_v = _paired_steps(vec, length)
+        idx = np.repeat(idx, u.shape[1])
+        u, v, p, has_v = u.reshape(-1, 2), v.reshape(-1, 2), p.reshape(-1, 2), has_v.ravel()
+    else:
+        u = vec[:, 0]
+        cos = np.abs((vec * u[:, None, :]).sum(-1)) / np.maximum(length * length[:, :1], 1e-9)
+        ok = (cos < 0.57) & (length < 3.0 * length[:, :1])
+        has_v = ok.any(axis=1)
+        v = vec[np.arange(len(idx)), np.argmax(ok, axis=1)]
+        u, v, p = _central_steps(tree, xy, xy[idx], u, v)
     d, j = tree.query(_predicted_neighbours(xy[idx], u, v, p).reshape(-1, 2))
     d, j = d.reshape(len(idx), 8), j.reshape(len(idx), 8)
     ratio = area[j] / area[idx, None]
     step = np.minimum(np.hypot(*u.T), np.hypot(*v.T))[:, None]
     hit = (d < 0.2 * step) & (ratio > 0.5) & (ratio < 2.0)
     score = np.where(has_v, hit.sum(axis=1), 0)
+    if two_level and len(score) > len(nn):   # each node's shortest hypothesis with six, else its best
+        per = score.reshape(len(nn), -1)
+        pick = np.where((per >= 6).any(axis=1), np.argmax(per >= 6, axis=1), np.argmax(per, axis=1))
+        keep = np.arange(len(nn)) * per.shape[1] + pick
+        idx, u, v, p, score = idx[keep], u[keep], v[keep], p[keep], score[keep]
     if score.max() < 6:
         return None
     best = np.flatnonzero(score == score.max())
+    if two_level:   # a parallax near a quarter pitch also fits a basis sheared by half a cell: the least sheared
+        cos = np.abs(_cos(u[best] + v[best], u[best] - v[best]))
+        best = best[cos <= cos.min() + 0.1]
     k = best[np.argmin(np.hypot(*(xy[idx[best]] - np.median(xy[idx[best]], axis=0)).T))]
     return _Seed(int(idx[k]), u[k], v[k], p[k])
 
 
-def _banded_seed(xy: np.ndarray, area: np.ndarray) -> _Seed | None:
+def _banded_seed(xy: np.ndarray, area: np.ndarray, two_level: bool = False) -> _Seed | None:
     """:func:`_seed` among candidates of similar area: in overlapping bands of a factor 6 of area (so that
     many small blobs, hot pixels or text, do not hide the lattice of the dots), tried from the most
     populated band down until a seed has all eight neighbours; the best-supported seed, ties to the band
@@ -262,7 +313,7 @@ def _banded_seed(xy: np.ndarray, area: np.ndarray) -> _Seed | None:
              for lo in np.arange(np.floor(la.min()), la.max() + 1e-9, 1.0)]
     best, best_support = None, -1
     for sel in sorted((b for b in bands if len(b) >= 9), key=len, reverse=True):
-        s = _seed(xy[sel], area[sel])
+        s = _seed(xy[sel], area[sel], two_level=two_level)
         if s is None:
             continue
         s.k = int(sel[s.k])
@@ -418,7 +469,7 @@ def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> Lat
     times)."""
     use = np.flatnonzero(~cand.border)
     xy, area = cand.xy[use], cand.area[use]
-    s = _banded_seed(xy, area)
+    s = _banded_seed(xy, area, two_level)
     if s is None:
         return None
     h = np.array([[s.u[0], s.v[0], xy[s.k, 0]], [s.u[1], s.v[1], xy[s.k, 1]], [0, 0, 1.0]])
@@ -531,20 +582,24 @@ class PlateLattice:
         ab = np.linalg.inv(self.m) @ i.reshape(2, -1)
         return ab[0].reshape(np.shape(i1)), ab[1].reshape(np.shape(i1))
 
-    def predict(self, i1, i2) -> np.ndarray:
-        """Image positions ``(…, 2)`` [px] of plate-unit coordinates."""
+    def predict(self, i1, i2, odd: bool | None = None) -> np.ndarray:
+        """Image positions ``(…, 2)`` [px] of plate-unit coordinates; ``odd``: all on the plane of the dots of
+        odd (``True``) or even ``i1`` (``False``) of a two-level plate, not each on its own."""
         a, b = self.to_ab(i1, i2)
-        return self.model.predict(np.column_stack([np.ravel(a), np.ravel(b)])).reshape(*np.shape(a), 2)
+        ab = np.column_stack([np.ravel(a), np.ravel(b)])
+        w = self.model.predict(ab) if odd is None else (self.model.second if odd else self.model).base(ab)
+        return w.reshape(*np.shape(a), 2)
 
-    def locate(self, point) -> tuple[float, float]:
-        """Plate-unit coordinates (fractional) of an image point [px], by Newton on the lattice model."""
+    def locate(self, point, odd: bool | None = None) -> tuple[float, float]:
+        """Plate-unit coordinates (fractional) of an image point [px], by Newton on the lattice model (on one
+        level's plane, ``odd`` as in :meth:`predict`)."""
         p = np.asarray(point, float)
         on = self.predict(self.i1, self.i2)
         k = int(np.argmin(np.hypot(*(on - p).T)))
         x = np.array([self.i1[k], self.i2[k]], float)
         h = 1e-3
         for _ in range(4):   # the point and its two forward steps in one prediction
-            f, fa, fb = self.predict(x[0] + np.array([0.0, h, 0.0]), x[1] + np.array([0.0, 0.0, h]))
+            f, fa, fb = self.predict(x[0] + np.array([0.0, h, 0.0]), x[1] + np.array([0.0, 0.0, h]), odd)
             jac = np.column_stack([(fa - f) / h, (fb - f) / h])
             x = x + np.linalg.solve(jac, p - f)
         return float(x[0]), float(x[1])
@@ -657,28 +712,26 @@ def origin_frame(pl: PlateLattice, markers: list):
     * a **square and a triangle** (stereo-PIV plates): the origin is the dot in the corner of the lattice
       cell the two markers span such that, seen from the camera, ``+x`` points from the origin to the
       triangle and ``+y`` to the square, 90° counter-clockwise from ``+x`` (a right-handed plate frame whose
-      ``z`` points towards the camera); the other corner is the mirror image and is not a solution;
+      ``z`` points towards the camera); the other corner is the mirror image and is not a solution. On a
+      two-level plate a **blob** in a hole (a marker whose shape defocus hid) stands for either: of the pairs
+      that span a cell so, the one reading the most shapes, and of those the one whose markers lie nearest
+      their holes (at most half as far as the next: two blobs span a cell from a dot of either level);
     * a **frame** around a dot: that dot is the origin, ``+x`` along the image's ``w1`` and ``+y`` against
       ``w2`` (up in the image).
     """
     kinds = {}
     for m in markers:
         kinds.setdefault(m.kind, []).append(m)
-    if len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1:
-        t = np.rint(pl.locate(kinds["triangle"][0].centre)).astype(int)
-        s = np.rint(pl.locate(kinds["square"][0].centre)).astype(int)
-        dots = set(zip(pl.i1.tolist(), pl.i2.tolist()))
-        for ex in _UNITS:
-            n = t - ex
-            ey = s - n
-            # counter-clockwise on screen (w2 down): (d1, d2) -> (d2, -d1)
-            if np.array_equal(ey, np.array([ex[1], -ex[0]])):
-                if pl.two_level and (n[0] + n[1]) % 2:
-                    continue
-                rel = np.stack([pl.i1 - n[0], pl.i2 - n[1]], axis=1)
-                how = ("square and triangle markers" + ("" if tuple(n) in dots else " (origin dot not seen)"))
-                return (rel @ ex, rel @ ey), how
-        return None, "a square and a triangle marker were found but do not span one lattice cell"
+    blobs = kinds.get("blob", []) if pl.two_level else []
+    xs, ys = kinds.get("triangle", []) + blobs, kinds.get("square", []) + blobs
+    if xs and ys and (len(kinds.get("triangle", [])) <= 1 and len(kinds.get("square", [])) <= 1):
+        found = [(int(t.kind == "triangle") + int(s.kind == "square"), *cell) for t in xs for s in ys
+                 if t is not s and (cell := _cell_frame(pl, t, s)) is not None]
+        best = sorted((off, frame) for n, off, frame in found if n == max((n for n, _, _ in found), default=0))
+        if len(best) == 1 or (len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
+            return best[0][1]
+        if len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1 and not found:
+            return None, "a square and a triangle marker were found but do not span one lattice cell"
     frames = kinds.get("frame", [])
     if len(frames) == 1:
         n = np.rint(pl.locate(frames[0].centre)).astype(int)
@@ -687,6 +740,38 @@ def origin_frame(pl: PlateLattice, markers: list):
         found = ", ".join(f"{len(v)} {k}" for k, v in kinds.items())
         return None, f"markers found ({found}) but not a square and a triangle, nor one frame"
     return None, "no markers found"
+
+
+def _cell_frame(pl: PlateLattice, triangle, square):
+    """The origin frame of :func:`origin_frame` if markers ``triangle`` (``+x``) and ``square`` (``+y``) span a
+    lattice cell so, and how far the markers lie from the holes they were rounded to [plate units]; ``None``
+    if they do not. On a two-level plate they are located on each level's plane in turn (the parallax moves
+    the other's by up to half a unit), the origin on that level; the plane they lie nearer holes on is taken
+    (they are on the origin's level)."""
+    found = []
+    for odd in (False, True) if pl.two_level else (None,):
+        at = np.array([pl.locate(m.centre, odd) for m in (triangle, square)])
+        t, s = np.rint(at).astype(int)
+        off = float(np.abs(at - np.rint(at)).sum())
+        for ex in _UNITS:
+            n = t - ex
+            frame = _origin_at(pl, n, ex, s - n, triangle, square) if odd is None or n[0] % 2 == odd else None
+            if frame is not None:
+                found.append((off, frame))
+    return min(found, key=lambda f: f[0], default=None)
+
+
+def _origin_at(pl: PlateLattice, n, ex, ey, triangle, square):
+    """The origin frame at origin ``n`` with ``+x`` along ``ex`` if ``ey`` is 90° counter-clockwise from it on
+    screen (w2 down: ``(d1, d2) -> (d2, -d1)``) and ``n`` is a dot's place, else ``None``."""
+    if not np.array_equal(ey, np.array([ex[1], -ex[0]])) or (pl.two_level and (n[0] + n[1]) % 2):
+        return None
+    rel = np.stack([pl.i1 - n[0], pl.i2 - n[1]], axis=1)
+    dots = set(zip(pl.i1.tolist(), pl.i2.tolist()))
+    blobs = sum(m.kind == "blob" for m in (triangle, square))
+    how = ("square and triangle markers" + (f" ({blobs} told by its place)" if blobs else "")
+           + ("" if tuple(n) in dots else " (origin dot not seen)"))
+    return (rel @ ex, rel @ ey), how
 
 
 def lattice_residual_px(table: pd.DataFrame) -> float:

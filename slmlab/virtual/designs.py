@@ -17,8 +17,9 @@ span (:meth:`~slmlab.virtual.rigs.StereoRig.depth_mm`, ``±d``):
 ``two-level``, ``two-level-2z``, ``two-level-3z``
     a two-level plate (the stereo-PIV convention: rows alternating between two depths, the
     second level's rows offset by half a pitch, numbered in half pitches, with a ``level`` column and
-    ``levels``/``level_offset_mm`` in ``meta.json``), the second level ``0.6 d`` behind the first, in one pose,
-    or at 2 (``±d/2``) or 3 (``-d/2, 0, +d/2``) stage Z positions.
+    ``levels``/``level_offset_mm`` in ``meta.json``), the second level behind the first by as much as
+    puts its dots a quarter of a pitch off the first level's cell centres in either view, at most ``0.6 d``
+    (:func:`two_level_offset_mm`), in one pose, or at 2 (``±d/2``) or 3 (``-d/2, 0, +d/2``) stage Z positions.
 ``charuco-stack``
     a ChArUco board's inner corners as a known target (points mode: ``x_mm, y_mm, z_mm`` in the board's
     frame), at 5 stage Z positions over ``[-d, +d]``.
@@ -46,8 +47,8 @@ from .rigs import sized_plate
 from .sessions import Session, zstack_frame
 from .simulate import simulate_set, stepped_target, target_set
 
-__all__ = ["ZSTACK_PLANES", "DESIGNS", "paper_sequences", "zstack_design", "two_level_target", "charuco_corners",
-           "known_target_set", "simulate_design", "design_frame", "validation_set"]
+__all__ = ["ZSTACK_PLANES", "DESIGNS", "paper_sequences", "zstack_design", "two_level_target", "TWO_LEVEL_PARALLAX",
+           "two_level_offset_mm", "charuco_corners", "known_target_set", "simulate_design", "design_frame", "validation_set"]
 
 ZSTACK_PLANES = (2, 3, 5, 7, 13)
 #: the designs by name, with a line each
@@ -55,7 +56,8 @@ DESIGNS = {
     **{f"zstack-{n}": f"a field-filling dot plate at {n} stage Z positions over ±depth" for n in ZSTACK_PLANES},
     "stage-sequences": "the paper's X, Y, Z axis sequences (Test 2's counts) and the grid pair, scaled",
     "stepped-target": "a stepped 3D target (five heights over ±0.9 depth) in one pose",
-    "two-level": "a two-level plate (second level 0.6 depth behind) in one pose",
+    "two-level": "a two-level plate (second level at a quarter pitch's parallax, at most 0.6 depth, behind) "
+                 "in one pose",
     "two-level-2z": "the two-level plate at 2 stage Z positions (±depth/2)",
     "two-level-3z": "the two-level plate at 3 stage Z positions (-depth/2, 0, +depth/2)",
     "charuco-stack": "a ChArUco board's inner corners (a known target) at 5 stage Z positions over ±depth",
@@ -129,6 +131,25 @@ def known_target_set(rig, target: pd.DataFrame, stage_mm, *, seed: int = 0, plat
                       origin_mm=rig.field_centre_mm())
 
 
+#: a two-level plate's second level is as deep as puts its dots this share of a pitch off the first level's cell
+#: centres (its parallax at the rig's half angle, in air), at most 0.6 of the rig's depth: a plate made for the
+#: rig, as two-level plates are made for the viewing angles they serve. Deeper, the square marker (half a pitch
+#: from the origin dot) meets the other level's dot that parallax brings beside it: on the stereo-DIC rig at
+#: 0.3 of a pitch they touch at every level and the plate cannot be numbered; at 0.6 of the depth (0.4 of a
+#: pitch there) the dot covers the square
+TWO_LEVEL_PARALLAX = 0.25
+
+
+def two_level_offset_mm(rig, pitch_mm: float) -> float:
+    """The second level's depth [mm] behind the first on a two-level plate of ``pitch_mm`` for ``rig``
+    (:data:`TWO_LEVEL_PARALLAX`)."""
+    depth = 0.6 * rig.depth_mm()
+    half_angle = getattr(rig, "half_angle_deg", None)
+    if half_angle is None:
+        return depth
+    return min(depth, TWO_LEVEL_PARALLAX * pitch_mm / np.tan(np.radians(half_angle)))
+
+
 def _z(values) -> np.ndarray:
     return np.column_stack([np.zeros(len(values)), np.zeros(len(values)), values])
 
@@ -151,7 +172,7 @@ def simulate_design(rig, design: str, seed: int = 0) -> CalibrationSet:
         cal = known_target_set(rig, target, [[0.0, 0.0, 0.0]], seed=seed)
     elif design.startswith("two-level"):
         pitch = sized_plate(0.95 * fw, 0.95 * fh, dots=15).pitch_mm
-        offset = float(f"{-0.6 * d:.2g}")
+        offset = float(f"{-two_level_offset_mm(rig, pitch):.2g}")
         target = two_level_target(0.95 * fw, 0.95 * fh, pitch, offset)
         z = {"two-level": [0.0], "two-level-2z": [-d / 2, d / 2], "two-level-3z": [-d / 2, 0.0, d / 2]}[design]
         plate = {"pitch_mm": pitch, "dot_diameter_mm": pitch / 4, "dots": "bright", "levels": 2,
