@@ -1,7 +1,9 @@
 """Images as a camera writes them, turned into dot centres: the input of every model (paper §3).
 
 ``dots``
-    finding a plate's dots: a threshold sweep over the local contrast, markers, hot pixels, the local search;
+    finding a plate's dots: a threshold sweep over the local contrast, hot pixels, the local search;
+``markers``
+    the plate's markers: shapes off the lattice, shapes joined to a dot, blobs in a two-level plate's holes;
 ``centres``
     their sub-pixel centres (``moments``, ``ellipse``, ``edges``, ``fit``, ``symmetry``);
 ``lattice``

@@ -18,15 +18,14 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
    :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric); each level's connected components
    are tracked to the level below by containment (their centroid pixel), or by the nearest centroid for
    rings. A blob seen at two levels or more is a candidate, and so is one split off a larger blob at the top
-   level with an outline that can show a shape (a marker beside a dot); its outline is read at the highest level at or
-   below half its peak. Which candidates are the plate's dots is decided by their lattice
-   (:func:`slmlab.images.lattice.fit_lattice`), not by their size or shape.
-3. **Markers** (:func:`marker_kind`): candidates off the lattice whose outline is a triangle, a square or a
-   square frame around a dot (:func:`polygon_kind`).
-4. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known:
+   level with an outline that can show a shape (a marker beside a dot); its outline is read at the highest
+   level at or below half its peak. Which candidates are the plate's dots is decided by their lattice
+   (:func:`slmlab.images.lattice.fit_lattice`), not by their size or shape; which are markers, by
+   :mod:`slmlab.images.markers`.
+3. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known:
    outside the dots, and inside them too where the camera's other images show the same pixel standing out
    (:func:`camera_hot_pixels`).
-5. **Local search** (:func:`search_missing`): a node the lattice predicts but the sweep missed is searched
+4. **Local search** (:func:`search_missing`): a node the lattice predicts but the sweep missed is searched
    on its own local background by a matched filter of the dots' size, and taken only if it stands out of
    the noise and looks like the plate's own dots.
 """
@@ -45,15 +44,16 @@ from ..errors import SlmlabError
 __all__ = ["LOWEST_SIGMA", "LEVELS", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA", "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep", "Marker", "polygon_kind",
-           "marker_kind", "split_marker", "marker_outline", "painted_out", "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
+           "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
+           "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
 #: the number of levels of the sweep
 LEVELS = 6
 #: a blob seen at one level only that split off a larger blob there is a candidate if its area [px², full
-#: resolution] is at least this, the least a marker's outline needs to show its shape (:func:`polygon_kind`):
+#: resolution] is at least this, the least a marker's outline needs to show its shape
+#: (:func:`slmlab.images.markers.polygon_kind`):
 #: the levels are a factor 3 apart, so a marker that parallax brings within a few pixels of a dot is apart
 #: from it at one level only
 SPLIT_AREA_PX = 100
@@ -456,130 +456,6 @@ def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast) -> Candidates:
                       border, hole, ts[ref], first, ts[first], noise)
 
 
-
-
-# ------------------------------------------------------------------------------------------ markers
-@dataclass
-class Marker:
-    """A marker on the plate: ``kind`` (``'triangle'``, ``'square'``, ``'frame'``: a frame around a dot) and
-    its centre ``(w1, w2)`` [px]."""
-
-    kind: str
-    centre: tuple[float, float]
-
-
-def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
-    """``'triangle'``, ``'square'`` or ``'frame'`` (a square outline around a dot) for a contour large
-    enough to show its shape (≥ 100 px², read at full resolution); ``None`` for anything else (a dot, dust).
-
-    By two fills that an affine view leaves unchanged: of the smallest enclosing triangle (about 0.9 for a
-    triangle, ``π/3√3`` = 0.60 for any ellipse, 0.5 for a square) and of the smallest enclosing rectangle
-    (about 1 for a square, ``π/4`` for any ellipse)."""
-    if area < 100:
-        return None
-    hull = cv2.convexHull(cnt)
-    (_, _), (rw, rh), _ = cv2.minAreaRect(hull)
-    rect_fill = area / max(rw * rh, 1e-9)
-    square = rect_fill > 0.88 and 0.6 < rw / max(rh, 1e-9) < 1.6
-    if has_hole:
-        return "frame" if square else None
-    tri_area, _ = cv2.minEnclosingTriangle(hull)
-    if area / max(tri_area, 1e-9) > 0.78:
-        return "triangle"
-    return "square" if square else None
-
-
-def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float):
-    """The outlines of candidate ``k`` at ``level`` [noise σ] on the full-resolution image (lightly smoothed)
-    against the local background and spread at the candidate: the contours (full-image pixels) and their
-    hierarchy (:func:`cv2.findContours`, two levels)."""
-    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
-    p, base = gather_patches(img, cand.xy[k:k + 1], half)
-    # the background and spread at every pixel of the patch (bilinear on the reduced mesh): a window streak
-    # or a gradient across a marker would join its outline to the background's
-    g = np.arange(-half, half + 1, dtype=np.float32)
-    mx, my = np.meshgrid(*(con.to_reduced(np.column_stack([base[0, 0] + g, base[0, 1] + g])).T.astype(np.float32)))
-    background, spread = (cv2.remap(m.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                          for m in (con.background, con.spread))
-    z = (cv2.GaussianBlur(p[0].astype(np.float32), (0, 0), 1.0) - background) / spread
-    contours, hier = cv2.findContours(((-z if con.dark else z) > level).astype(np.uint8), cv2.RETR_CCOMP,
-                                      cv2.CHAIN_APPROX_NONE, offset=tuple(int(v) for v in base[0] - half))
-    return contours, (hier[0] if contours else None)
-
-
-def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> str | None:
-    """Shape of candidate ``k`` (``'triangle'``, ``'square'``, ``'frame'`` or ``None``) by :func:`polygon_kind`
-    on its largest outline at ``level`` [noise σ] (:func:`_outlines`): on the reduced image a small dot's
-    outline is a polygon of a few pixels, which may pass for a square."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    if not contours:
-        return None
-    outer = [c for c, hh in zip(contours, hier) if hh[3] == -1]
-    cnt = max(outer, key=cv2.contourArea).astype(np.float32)
-    area = cv2.contourArea(cnt)
-    holes = [cv2.contourArea(c) for c, hh in zip(contours, hier) if hh[3] != -1]
-    return polygon_kind(cnt, area, bool(holes) and max(holes) >= 0.03 * area)
-
-
-def split_marker(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float, node_xy, tol_px: float,
-                 dot_area_px: float):
-    """A solid marker (triangle or square) that the reduced image joined to the dot of candidate ``k``: of the
-    separate outlines at ``level`` [noise σ] on the full-resolution image (:func:`_outlines`), one is the dot
-    (its centroid within ``tol_px`` of its lattice node ``node_xy`` [px], its area at least half the dots'
-    ``dot_area_px`` at their reference level) and the largest other one a solid shape of 0.1-1 of the dot's
-    area at that level (not a glyph of a text strip that the lattice crosses): the :class:`Marker`
-    :func:`polygon_kind` names, or a ``'blob'`` if it is a quarter of the dot's area or more and 1.5 of its
-    radii from it (at the outline's centroid), and its outline (full-image pixels); ``None`` if there is no
-    such pair."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
-    lo, hi = np.rint(cand.xy[k]).astype(int) - half, np.rint(cand.xy[k]).astype(int) + half
-    parts = []
-    for j, hh in enumerate(hier if contours else []):
-        c = contours[j].reshape(-1, 2)
-        if hh[3] == -1 and (c > lo).all() and (c < hi).all():   # not a piece of a neighbour the patch cuts
-            m = cv2.moments(contours[j].astype(np.float32))
-            centre = np.array([m["m10"], m["m01"]]) / max(m["m00"], 1e-9)
-            parts.append((contours[j], m["m00"] / dot_area_px, centre, not any(h[3] == j for h in hier)))
-    dot = [i for i, p in enumerate(parts) if np.hypot(*(p[2] - node_xy)) < tol_px and p[1] > 0.5]
-    others = [p for i, p in enumerate(parts) if dot and i != dot[0] and 0.1 < p[1] / parts[dot[0]][1] < 1]
-    if not others:
-        return None
-    cnt, share, centre, solid = max(others, key=lambda p: p[1])
-    dot_area, dot_centre = parts[dot[0]][1], parts[dot[0]][2]
-    kind = polygon_kind(cnt.astype(np.float32), share * dot_area_px, False) if solid else None
-    if kind not in ("triangle", "square"):   # a blob: as large as a marker, beside the dot, not a piece of it
-        apart = np.hypot(*(centre - dot_centre)) > 1.5 * np.sqrt(dot_area * dot_area_px / np.pi)
-        kind = "blob" if solid and share >= 0.25 * dot_area and apart else None
-    return None if kind is None else (Marker(kind, (float(centre[0]), float(centre[1]))), cnt)
-
-
-def marker_outline(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> np.ndarray:
-    """The largest outline of candidate ``k`` at ``level`` [noise σ] (:func:`_outlines`; full-image pixels)."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    return max((c for c, hh in zip(contours, hier) if hh[3] == -1), key=cv2.contourArea)
-
-
-def painted_out(img: np.ndarray, outlines: list, values: list, grow_px: int, dots_xy: np.ndarray,
-                dot_radius_px: float) -> np.ndarray:
-    """A copy of ``img`` with the shapes inside ``outlines`` (contours, full-image pixels) set to ``values``
-    (the local background), grown by up to ``grow_px`` (their blurred edge) but only over pixels nearer the
-    shape than the outline of every dot (centres ``dots_xy`` [px], radius ``dot_radius_px``): a marker beside
-    a dot, so that it does not pull the dot's centre."""
-    out = img.copy()
-    h, w = img.shape
-    tree = cKDTree(dots_xy)
-    for cnt, value in zip(outlines, values):
-        x, y, bw, bh = cv2.boundingRect(cnt)
-        x0, y0, x1, y1 = max(x - grow_px, 0), max(y - grow_px, 0), min(x + bw + grow_px, w), min(y + bh + grow_px, h)
-        inside = np.full((y1 - y0, x1 - x0), 255, np.uint8)
-        cv2.drawContours(inside, [cnt - np.array([x0, y0])], -1, 0, cv2.FILLED)
-        to_shape = cv2.distanceTransform(inside, cv2.DIST_L2, 5)
-        yy, xx = np.mgrid[y0:y1, x0:x1]
-        to_dot = tree.query(np.column_stack([xx.ravel(), yy.ravel()]))[0].reshape(xx.shape) - dot_radius_px
-        paint = (to_shape <= grow_px) & (to_shape < to_dot)
-        out[y0:y1, x0:x1][paint] = value
-    return out
 
 
 # ------------------------------------------------------------------------------------------ hot pixels

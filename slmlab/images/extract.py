@@ -33,8 +33,8 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
-from .dots import (SEARCH_SIGMA, Candidates, Contrast, Marker, clean_hot_pixels, local_contrasts, marker_kind,
-                   marker_outline, painted_out, read_image, search_missing, split_marker, sweep)
+from .dots import Candidates, Contrast, clean_hot_pixels, local_contrasts, read_image, search_missing, sweep
+from .markers import filled_holes, joined_markers, marker_outline, off_lattice_markers, painted_out
 from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
                       lattice_residual_px, number_plate, origin_frame, plate_lattice, robust_model, similar_area)
 
@@ -73,10 +73,6 @@ AUTO_FIT_RATIO = 1.0
 #: take them off the lattice for the others (greenough:5's bright region: the fit 0.030 px RMS with one dot
 #: lost in 196, the others 1.2-1.4 px off on the three dots beside the glare)
 AUTO_FIT_SLACK = 1
-#: a dot on the lattice this much larger than the dots' median area may hold a marker that the reduced image
-#: joined to it (a two-level plate's parallax brings the other level's dots beside its markers): it is read at
-#: full resolution (:func:`slmlab.images.dots.split_marker`)
-MERGED_AREA = 1.3
 #: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
 #: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
 OFF_LATTICE_PX = 0.25
@@ -200,41 +196,19 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
     return loc
 
 
-def _split_markers(loc: _Located) -> list:
-    """The markers joined to a dot of the lattice on the reduced image (:data:`MERGED_AREA`), read at full
-    resolution (:func:`slmlab.images.dots.split_marker`) at the blob's reference level, the dots', and half and
-    three quarters of the dots' peak (blur narrows the gap between them: the higher levels see it), a named
-    shape before a blob in a hole: each a ``(candidate, marker, outline)``; their dots take the dots' median
-    area."""
-    cand, fit, con = loc.cand, loc.fit, loc.con
-    median = float(np.median(cand.area[fit.on]))
-    peak = float(np.median(cand.peak[fit.on]))
-    levels = sorted({float(np.median(cand.level[fit.on])), 0.5 * peak, 0.75 * peak})
-    bright = cand.peak >= 0.3 * peak
-    found = []
-    for k in np.flatnonzero(fit.on & (cand.area > MERGED_AREA * median) & bright):
-        node = fit.node[k][None]
-        at = (fit.model.predict(node)[0], float(fit.tolerance(node)[0]), median)
-        reads = [split_marker(loc.clean, con, cand, k, level, *at) for level in [cand.level[k], *levels]]
-        reads = [r for r in reads
-                 if r is not None and (r[0].kind != "blob" or _in_hole(fit, np.array([r[0].centre]))[0])]
-        if reads:   # a shape named at any level before a blob
-            found.append((k, *min(reads, key=lambda r: r[0].kind == "blob")))
-    loc.area = np.where(np.isin(loc.src, [k for k, _, _ in found]), median, loc.area)
-    return found
-
-
 def _read_markers(loc: _Located) -> None:
     """Why each candidate off the lattice is off it, and the plate's markers (:func:`_candidate_reasons`, with
-    those joined to a dot: :func:`_split_markers`), into ``loc.reason`` and ``loc.markers``; the solid ones
-    (triangles, squares, blobs in holes) are painted out of ``loc.clean`` with the local background, as far as
-    their blurred edge reaches and no nearer a dot than to them, so that a marker beside a dot does not pull its
+    those joined to a dot: :func:`slmlab.images.markers.joined_markers`, whose dots take the dots' median
+    area; on a two-level plate where fewer than two were read, :func:`slmlab.images.markers.filled_holes`), into
+    ``loc.reason`` and ``loc.markers``; the solid ones (triangles, squares, blobs in holes) are painted out of
+    ``loc.clean`` (:func:`slmlab.images.markers.painted_out`) so that a marker beside a dot does not pull its
     centre."""
-    split = _split_markers(loc)
-    loc.reason, loc.markers = _candidate_reasons(loc.clean, loc.con, loc.cand, loc.fit, [m for _, m, _ in split])
-    if loc.fit.model.second is not None and len(loc.markers) < 2:
-        loc.markers += _filled_holes(loc)
-    con, cand = loc.con, loc.cand
+    con, cand, fit = loc.con, loc.cand, loc.fit
+    split = joined_markers(loc.clean, con, cand, fit)
+    loc.area = np.where(np.isin(loc.src, [k for k, _, _ in split]), float(np.median(cand.area[fit.on])), loc.area)
+    loc.reason, loc.markers = _candidate_reasons(loc.clean, con, cand, fit, [m for _, m, _ in split])
+    if fit.model.second is not None and len(loc.markers) < 2:
+        loc.markers += filled_holes(con, cand, fit, (loc.ab, loc.xy), loc.clean.shape, loc.markers)
     marked = np.char.startswith(loc.reason.astype(str), "marker: ")
     solid = np.flatnonzero(marked & (loc.reason != "marker: frame"))
     outlines = [marker_outline(loc.clean, con, cand, k, cand.level[k]) for k in solid] + [c for _, _, c in split]
@@ -243,8 +217,8 @@ def _read_markers(loc: _Located) -> None:
     centre = np.array([cand.xy[k] for k in solid] + [m.centre for _, m, _ in split])
     r = np.clip(np.rint(con.to_reduced(centre)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     background = list(con.background[r[:, 1], r[:, 0]].astype(loc.clean.dtype))
-    dots = loc.fit.model.predict(loc.ab)
-    loc.clean = painted_out(loc.clean, outlines, background, int(np.ceil(2 * con.scale)), dots, _dot_radius(loc))
+    loc.clean = painted_out(loc.clean, outlines, background, int(np.ceil(2 * con.scale)), fit.model.predict(loc.ab),
+                            _dot_radius(loc))
 
 
 def _search_box(fit: LatticeFit, rows: int | None, cols: int | None) -> int:
@@ -384,7 +358,8 @@ def _refined(loc: _Located, method: str, two_level: bool):
 def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit,
                        split: list = ()) -> tuple[np.ndarray, list]:
     """Why each candidate the lattice left off was left off (an array of reasons; on-lattice ones empty),
-    and the markers among them (:func:`slmlab.images.dots.marker_kind`), with those ``split`` off a dot."""
+    and the markers among them (:func:`slmlab.images.markers.off_lattice_markers`), with those ``split`` off a
+    dot."""
     nodes = fit.nodes(grow=2)
     d, j = cKDTree(fit.model.predict(nodes)).query(cand.xy)
     near = d < fit.tolerance(nodes[j])
@@ -403,85 +378,7 @@ def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: La
         reason[k] = fixed.get(c) or (f"off the lattice ({d[k]:.1f} px from the nearest node)" if c == 5 else
                                      f"too {'small' if ratio[k] < AREA_RANGE[0] else 'large'} ({ratio[k]:.2g} of the "
                                      "dots' median area)")
-    return reason, _markers(img, con, cand, fit, reason, ratio, split)
-
-
-def _markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, reason: np.ndarray,
-             ratio: np.ndarray, split: list = ()) -> list:
-    """The markers among the candidates off the lattice (their ``reason`` set to the marker's kind): solid
-    shapes of about a dot's size away from every lattice node (a plate's markers sit in its holes), as plain
-    to see as the dots and apart from them (a shape that parallax brings near a dot is seen apart from it
-    only at the higher levels of the sweep), read at their reference level, or at half of it where blur rounds
-    a small square's corners there (a dot's outline is an ellipse at any level); and thin outlines (a ring, a
-    frame) centred on a dot and larger than it, read at their widest."""
-    markers = []
-    dd, _ = cKDTree(cand.xy[fit.on]).query(cand.xy)
-    apart = dd > 1.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)    # not a piece of a dot
-    bright = cand.peak >= 0.3 * np.median(cand.peak[fit.on])
-    off = np.array([str(r).startswith("off the lattice (") for r in reason])
-    shapes = (ratio > 0.3) & (ratio < 4) & (cand.area >= 100) & apart & bright & off
-    outline = cand.area < 0.4 * cand.size[:, 0] * cand.size[:, 1]          # a ring or frame: mostly hole
-    around = (dd < 0.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)) & (
-        cand.size > 1.2 * np.median(cand.size[fit.on], axis=0)).all(axis=1)
-    frames = (cand.hole | outline) & around                                # a frame centred on a dot, larger
-    for k in np.flatnonzero((reason != "") & ~cand.border & (shapes | frames)):
-        kind = marker_kind(img, con, cand, k, cand.low[k] if frames[k] and not shapes[k] else cand.level[k])
-        if kind is None and shapes[k]:   # a small square's corners rounded by blur at half its peak: lower down
-            kind = marker_kind(img, con, cand, k, cand.level[k] / 2)
-        if (kind == "frame" and frames[k]) or (kind in ("triangle", "square") and shapes[k]):
-            markers.append(Marker(kind, tuple(cand.xy[k])))
-            reason[k] = f"marker: {kind}"
-    markers += _hole_blobs(cand, fit, reason, ratio, bright & off & ~cand.border)
-    return markers + list(split)
-
-
-def _in_hole(fit: LatticeFit, xy: np.ndarray) -> np.ndarray:
-    """Whether points ``xy`` [px] are in a hole of a two-level plate: within a quarter step of the centre of
-    a lattice cell on either level's plane (the markers are on the level whose parity the lattice does not yet
-    know); never on a one-level plate."""
-    if fit.model.second is None:
-        return np.zeros(len(xy), bool)
-    cells = fit.nodes(grow=1) + 0.5
-    d, _ = cKDTree(np.vstack([fit.model.base(cells), fit.model.second.base(cells)])).query(xy)
-    return d < 0.25 * fit.pitch
-
-
-def _filled_holes(loc: _Located) -> list:
-    """On a two-level plate where fewer than two markers were read: ``'blob'`` markers at the holes (the centres
-    of the lattice's cells whose four dots were found, on either level's plane) whose contrast at their centre
-    stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least
-    half the dots' median peak and :data:`slmlab.images.dots.SEARCH_SIGMA`, a quarter step from every dot and
-    marker read: a marker that blur joins to the dot beside it at every level of the sweep."""
-    fit, con = loc.fit, loc.con
-    corners = fit.nodes(grow=1)
-    have = {tuple(n) for n in loc.ab}
-    inner = np.array([all((a + i, b + j) in have for i in (0, 1) for j in (0, 1)) for a, b in corners])
-    cells = corners[inner] + 0.5        # within the plate: the four dots around the hole found
-    holes = np.vstack([fit.model.base(cells), fit.model.second.base(cells)])
-    keep = inside_image(holes, loc.clean.shape, 2 * _dot_radius(loc))
-    keep &= cKDTree(loc.xy).query(holes)[0] > 0.25 * fit.pitch
-    if loc.markers:
-        keep &= cKDTree([m.centre for m in loc.markers]).query(holes)[0] > 0.25 * fit.pitch
-    r = np.clip(np.rint(con.to_reduced(holes)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
-    z = con.z[r[:, 1], r[:, 0]]
-    if len(z) < 9:
-        return []
-    around = np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # its neighbour holes, empty
-    peak = float(np.median(loc.cand.peak[fit.on]))
-    filled = keep & (z - around >= max(0.5 * peak, SEARCH_SIGMA))
-    return [Marker("blob", (float(x), float(y))) for x, y in holes[filled]]
-
-
-def _hole_blobs(cand: Candidates, fit: LatticeFit, reason: np.ndarray, ratio: np.ndarray, plain: np.ndarray) -> list:
-    """On a two-level plate, the candidates in its holes (:func:`_in_hole`) whose shape was not read, of
-    0.2-1.5 of a dot's area and as plain to see as the dots: a marker whose corners defocus rounds
-    (:func:`slmlab.images.lattice.origin_frame` tells the triangle from the square by their places beside the
-    origin dot). Their ``reason`` is set."""
-    blob = plain & _in_hole(fit, cand.xy) & (ratio > 0.2) & (ratio < 1.5) & ~np.char.startswith(
-        reason.astype(str), "marker")
-    for k in np.flatnonzero(blob):
-        reason[k] = "marker: a blob in a hole (shape not read)"
-    return [Marker("blob", tuple(cand.xy[k])) for k in np.flatnonzero(blob)]
+    return reason, off_lattice_markers(img, con, cand, fit, reason, ratio) + list(split)
 
 
 def _report(cand: Candidates, reason: np.ndarray, searched, dropped: dict, expected: np.ndarray) -> pd.DataFrame:
