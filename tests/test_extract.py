@@ -516,7 +516,8 @@ def test_the_local_search_follows_a_distorted_plate_line_by_line_beyond_the_latt
 
 def _two_level_points(parallax, lost=(), pitch=60.0, n=13):
     """Image points of an ``n × n`` two-level plate (pitch [px]) seen in mild perspective: the first level at
-    whole pitches, the second at the cell centres moved by ``parallax`` (in pitches, along the image's x), less
+    whole pitches, the second at the cell centres moved by ``parallax`` (in pitches, along the plate's first
+    axis, before the perspective), less
     the dots at the plate positions ``lost`` (half pitches); and each point's plate position [half pitches]."""
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     first = np.column_stack([2 * i.ravel(), 2 * j.ravel()])
@@ -533,15 +534,15 @@ def _two_level_points(parallax, lost=(), pitch=60.0, n=13):
 @pytest.mark.parametrize("parallax, lost", [(0.0, ()), (0.12, ()), (0.25, ()), (0.33, ()),
                                             (0.25, ((13, 11), (11, 13), (12, 14)))])
 def test_a_two_level_lattice_is_fitted_along_the_plate_s_axes_at_any_parallax_the_markers_allow(parallax, lost):
-    """A two-level plate whose second level parallax moves by up to a third of a pitch (beyond it the square
-    marker meets a dot). The seed's steps were taken as half the difference of a dot's opposite neighbours,
-    looked for within 0.6 of a step of the mirror of the nearest: at a quarter of a pitch the mirror falls
-    halfway between two dots and no seed was found ("no dots found"). The other level's four nearest dots are
-    two pairs sharing a midpoint, moved by the parallax, whatever it is. At a quarter pitch a basis sheared by
-    half a cell fits a node's neighbours too; where dots are lost beside the seed (a marker joined to one) it
-    was taken and the plate numbered along a diagonal. The lattice holds the plate but its corners (its lines,
-    the plate's diagonals, hold one or two dots there: the local search finds them), each dot at its plate
-    position up to the plate's symmetry and a shift."""
+    """A two-level plate whose second level parallax moves by up to a third of a pitch (the lattice; the markers are
+    read up to about a quarter, :data:`slmlab.virtual.designs.TWO_LEVEL_PARALLAX`). The seed's steps were taken as
+    half the difference of a dot's opposite neighbours, looked for within 0.6 of a step of the mirror of the
+    nearest: at a quarter of a pitch the mirror falls halfway between two dots and no seed was found ("no dots
+    found"). The other level's four nearest dots are two pairs sharing a midpoint, moved by the parallax, whatever
+    it is. At a quarter pitch a basis sheared by half a cell fits a node's neighbours too; where dots are lost
+    beside the seed (a marker joined to one) it was taken and the plate numbered along a diagonal. The lattice holds
+    the plate but its corners (its lines, the plate's diagonals, hold one or two dots there: the local search finds
+    them), each dot at its plate position up to the plate's symmetry and a shift."""
     from types import SimpleNamespace
     from slmlab.images.lattice import fit_lattice, plate_lattice
     xy, half = _two_level_points(parallax, lost)

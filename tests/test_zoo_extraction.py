@@ -376,7 +376,7 @@ def test_a_two_level_plate_whose_parallax_brings_a_dot_beside_the_square_is_read
     beside the square was 0.18-0.32 px off, pulled by it. Now every visible dot is found at its number, within
     0.05 px, and every image is numbered by both markers."""
     notes, vis = _two_level_errors(rig_by_name(rig), rig_degradations(rig, "clean"), 1, tmp_path)
-    assert any("numbering anchored in 4 image(s) by square and triangle markers" in n for n in notes), notes
+    assert any("numbering anchored in 4 image(s) by square and triangle markers (4)" in n for n in notes), notes
     assert vis["good"].all() and vis["dist"].max() < 0.05, (vis["good"].mean(), vis["dist"].max())
 
 
@@ -400,11 +400,10 @@ TWO_LEVEL_CAMERAS = {
 @pytest.mark.parametrize("kind, seed", list(TWO_LEVEL_CAMERAS))
 def test_a_two_level_plate_s_markers_are_read_where_blur_joins_them_to_a_dot_or_rounds_them(kind, seed, tmp_path):
     """Two-level plates of random rigs whose markers blur joins to the dot beside them or rounds into blobs
-    (:data:`TWO_LEVEL_CAMERAS`). A marker joined to a dot is read apart at full resolution, at levels up to
-    three quarters of the dots' peak, against the background at each of its pixels (a window streak beside
-    it); a solid blob in a hole whose shape was not read stands for either marker, told apart by its place
-    beside the origin dot and the level whose plane the markers lie on. Every image is numbered, none wrongly,
-    and 99 % of the visible dots are found."""
+    (:data:`TWO_LEVEL_CAMERAS`). A marker joined to a dot is read apart at full resolution, at levels up to three
+    quarters of the dots' peak, against the background at each of its pixels; a solid blob in a hole whose shape was
+    not read stands for either marker, told apart by its place beside the origin dot and the level whose plane the
+    markers lie on. Every image is numbered, none wrongly, and 99 % of the visible dots are found."""
     notes, vis = _two_level_errors(random_rig(kind, seed), TWO_LEVEL_CAMERAS[(kind, seed)], seed, tmp_path)
     assert any("numbering anchored in 4 image(s)" in n for n in notes), notes
     assert (vis["found"] & ~vis["good"]).sum() == 0 and vis["good"].mean() >= 0.99, vis["good"].mean()

@@ -17,9 +17,9 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
    (whose one level per image a bright region or a gradient defeats): :data:`LEVELS` levels from
    :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric); each level's connected components
    are tracked to the level below by containment (their centroid pixel), or by the nearest centroid for
-   rings. A blob seen at two levels or more is a candidate, and so is one split off a larger blob at the top
-   level with an outline that can show a shape (a marker beside a dot); its outline is read at the highest
-   level at or below half its peak. Which candidates are the plate's dots is decided by their lattice
+   rings. A blob seen at two levels or more is a candidate, and on a two-level plate so is one split off a
+   larger blob at one level only, with an outline that can show a shape (a marker beside a dot); its outline
+   is read at the highest level at or below half its peak. Which candidates are the plate's dots is decided by their lattice
    (:func:`slmlab.images.lattice.fit_lattice`), not by their size or shape; which are markers, by
    :mod:`slmlab.images.markers`.
 3. **Hot pixels** (:func:`clean_hot_pixels`) are replaced by their 5 × 5 median once the dots' size is known:
@@ -51,11 +51,10 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "
 LOWEST_SIGMA = 3.0
 #: the number of levels of the sweep
 LEVELS = 6
-#: a blob seen at one level only that split off a larger blob there is a candidate if its area [px², full
-#: resolution] is at least this, the least a marker's outline needs to show its shape
-#: (:func:`slmlab.images.markers.polygon_kind`):
-#: the levels are a factor 3 apart, so a marker that parallax brings within a few pixels of a dot is apart
-#: from it at one level only
+#: on a two-level plate, a blob seen at one level only that split off a larger blob there is a candidate if its
+#: area [px², full resolution] is at least this, the least a marker's outline needs to show its shape
+#: (:func:`slmlab.images.markers.polygon_kind`): the levels are a factor 3 apart, so a marker that parallax
+#: brings within a few pixels of a dot is apart from it at one level only
 SPLIT_AREA_PX = 100
 #: least normalised cross-correlation with the dots' template of a dot found by the local search
 NCC_MIN = 0.5
@@ -411,8 +410,10 @@ def _track(prev: _Level | None, cur: _Level) -> None:
     cur.ids[rest[ok[first]]] = prev.ids[free[j[ok[first]]]]
 
 
-def sweep(con: Contrast, *, levels: int = LEVELS) -> Candidates:
-    """Blobs stable over a threshold sweep of the local contrast (module docstring, step 2)."""
+def sweep(con: Contrast, *, levels: int = LEVELS, split: bool = False) -> Candidates:
+    """Blobs stable over a threshold sweep of the local contrast (module docstring, step 2); with ``split`` (a
+    two-level plate, whose markers parallax brings beside a dot) also those split off a larger blob at one level
+    only (:data:`SPLIT_AREA_PX`)."""
     ts = _ladder(con.z, levels)
     recs, prev, next_id = [], None, 0
     for k, t in enumerate(ts):
@@ -426,17 +427,18 @@ def sweep(con: Contrast, *, levels: int = LEVELS) -> Candidates:
         if len(cur.xy) == 0:   # the levels nest: nothing above a level that holds no blob
             break
     rec = np.vstack(recs) if recs else np.empty((0, 10))
-    return _summarise(rec, ts, con)
+    return _summarise(rec, ts, con, split)
 
 
-def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast) -> Candidates:
+def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast, split: bool = False) -> Candidates:
     """Per-track candidates from the sweep's records ``(id, level, cx, cy, x, y, w, h, area, own centroid)``."""
     rec = rec[np.lexsort((rec[:, 1], rec[:, 0]))]
     ids, start, count = np.unique(rec[:, 0].astype(int), return_index=True, return_counts=True)
     first = rec[start, 1].astype(int)
     last = first + count - 1
     s = con.scale
-    split = (first > 0) & (rec[start, 8] * s * s >= SPLIT_AREA_PX)
+    # split off a larger blob (born above the lowest level, its centroid its own: not a ring), large enough
+    split = split & (first > 0) & (rec[start, 9] == 1) & (rec[start, 8] * s * s >= SPLIT_AREA_PX)
     noise = int(((count < 2) & ~split).sum())
     keep = (count >= 2) | split
     start, first, last, count = start[keep], first[keep], last[keep], count[keep]

@@ -163,7 +163,7 @@ class _Located:
 
 def _detect(img: np.ndarray, con: Contrast, two_level: bool) -> _Located:
     """Sweep and lattice for one polarity's contrast."""
-    cand = sweep(con)
+    cand = sweep(con, split=two_level)
     return _Located(con.dark, con, cand, fit_lattice(cand, img.shape, two_level=two_level))
 
 
@@ -198,23 +198,27 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
 
 def _read_markers(loc: _Located) -> None:
     """Why each candidate off the lattice is off it, and the plate's markers (:func:`_candidate_reasons`, with
-    those joined to a dot: :func:`slmlab.images.markers.joined_markers`, whose dots take the dots' median
-    area; on a two-level plate where fewer than two were read, :func:`slmlab.images.markers.filled_holes`), into
-    ``loc.reason`` and ``loc.markers``; the solid ones (triangles, squares, blobs in holes) are painted out of
-    ``loc.clean`` (:func:`slmlab.images.markers.painted_out`) so that a marker beside a dot does not pull its
-    centre."""
+    on a two-level plate those joined to a dot too: :func:`slmlab.images.markers.joined_markers`, whose dots
+    take the dots' median area; where fewer than two were read, :func:`slmlab.images.markers.filled_holes`),
+    into ``loc.reason`` and ``loc.markers``. On a two-level plate the solid ones read from their outlines
+    (triangles, squares, blobs in holes) are painted out of ``loc.clean``
+    (:func:`slmlab.images.markers.painted_out`) so that a marker beside a dot does not pull its centre."""
     con, cand, fit = loc.con, loc.cand, loc.fit
-    split = joined_markers(loc.clean, con, cand, fit)
+    two_level = fit.model.second is not None
+    split = joined_markers(loc.clean, con, cand, fit) if two_level else []
     loc.area = np.where(np.isin(loc.src, [k for k, _, _ in split]), float(np.median(cand.area[fit.on])), loc.area)
     loc.reason, loc.markers = _candidate_reasons(loc.clean, con, cand, fit, [m for _, m, _ in split])
-    if fit.model.second is not None and len(loc.markers) < 2:
+    if not two_level:
+        return
+    if len(loc.markers) < 2:
         loc.markers += filled_holes(con, cand, fit, (loc.ab, loc.xy), loc.clean.shape, loc.markers)
     marked = np.char.startswith(loc.reason.astype(str), "marker: ")
-    solid = np.flatnonzero(marked & (loc.reason != "marker: frame"))
-    outlines = [marker_outline(loc.clean, con, cand, k, cand.level[k]) for k in solid] + [c for _, _, c in split]
+    read = [(outline, tuple(cand.xy[k])) for k in np.flatnonzero(marked & (loc.reason != "marker: frame"))
+            if (outline := marker_outline(loc.clean, con, cand, k, cand.level[k])) is not None]
+    outlines = [c for c, _ in read] + [c for _, _, c in split]
     if not outlines:
         return
-    centre = np.array([cand.xy[k] for k in solid] + [m.centre for _, m, _ in split])
+    centre = np.array([xy for _, xy in read] + [m.centre for _, m, _ in split])
     r = np.clip(np.rint(con.to_reduced(centre)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     background = list(con.background[r[:, 1], r[:, 0]].astype(loc.clean.dtype))
     loc.clean = painted_out(loc.clean, outlines, background, int(np.ceil(2 * con.scale)), fit.model.predict(loc.ab),
@@ -286,7 +290,8 @@ def _plate_axes(fit: LatticeFit, nodes: np.ndarray):
 
 def _line_supported(nodes: np.ndarray, box, ok: np.ndarray) -> np.ndarray:
     """Whether each searched node's finding stands: inside the lattice's box always; beyond it only if its
-    lattice line (beyond the box, nodes in the image) holds dots at ≥ 30 % of its searched nodes and at two
+    line (the plate's row or column, :func:`_plate_axes`; beyond the box, nodes in the image) holds dots at
+    ≥ 30 % of its searched nodes and at two
     at least (one if the image shows one node of it), as the lattice itself grows: a lone find on a line
     the image shows is a glyph or a hot spot, not the plate."""
     a0, a1, b0, b1 = box
@@ -586,7 +591,7 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
     """Steps 3-5 of the module docstring on located dots: centres, numbering, report (``tabled``: this
     method's :func:`_table`, if already made)."""
     table, pl, dropped = tabled if tabled is not None else _table(loc, method, anchoring["two_level"])
-    reason, markers = loc.reason.copy(), loc.markers
+    reason, markers = loc.reason.copy(), list(loc.markers)
     radius = dot_diameter_px / 2 if dot_diameter_px else _dot_radius(loc)
     src_all = table["_src"].to_numpy()
     table, frame, how, note, window = _anchor(table, pl, markers, rows, cols, seen=_site_evidence(loc, table, radius + 1),

@@ -269,7 +269,7 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     _, nn = tree.query(xy[idx], k=min(9, n))
     vec = xy[nn[:, 1:]] - xy[idx, None, :]
     length = np.hypot(vec[..., 0], vec[..., 1])
-    if two_level and vec.shape[1] == 8:
+    if two_level:
         u, v, p, has_v = _paired_steps(vec, length)
         idx = np.repeat(idx, u.shape[1])
         u, v, p, has_v = u.reshape(-1, 2), v.reshape(-1, 2), p.reshape(-1, 2), has_v.ravel()
@@ -584,10 +584,12 @@ class PlateLattice:
 
     def predict(self, i1, i2, odd: bool | None = None) -> np.ndarray:
         """Image positions ``(…, 2)`` [px] of plate-unit coordinates; ``odd``: all on the plane of the dots of
-        odd (``True``) or even ``i1`` (``False``) of a two-level plate, not each on its own."""
+        odd (``True``) or even ``i1`` (``False``) of a two-level plate, not each on its own (a one-level plate
+        has one plane)."""
         a, b = self.to_ab(i1, i2)
         ab = np.column_stack([np.ravel(a), np.ravel(b)])
-        w = self.model.predict(ab) if odd is None else (self.model.second if odd else self.model).base(ab)
+        level = self.model.second if odd and self.model.second is not None else self.model
+        w = self.model.predict(ab) if odd is None else level.base(ab)
         return w.reshape(*np.shape(a), 2)
 
     def locate(self, point, odd: bool | None = None) -> tuple[float, float]:
@@ -715,7 +717,8 @@ def origin_frame(pl: PlateLattice, markers: list):
       ``z`` points towards the camera); the other corner is the mirror image and is not a solution. On a
       two-level plate a **blob** in a hole (a marker whose shape defocus hid) stands for either: of the pairs
       that span a cell so, the one reading the most shapes, and of those the one whose markers lie nearest
-      their holes (at most half as far as the next: two blobs span a cell from a dot of either level);
+      their holes (at most half as far as the next: two blobs span a cell from a dot of either level); where
+      a triangle and a square were both read, they alone;
     * a **frame** around a dot: that dot is the origin, ``+x`` along the image's ``w1`` and ``+y`` against
       ``w2`` (up in the image).
     """
@@ -724,14 +727,21 @@ def origin_frame(pl: PlateLattice, markers: list):
         kinds.setdefault(m.kind, []).append(m)
     blobs = kinds.get("blob", []) if pl.two_level else []
     xs, ys = kinds.get("triangle", []) + blobs, kinds.get("square", []) + blobs
-    if xs and ys and (len(kinds.get("triangle", [])) <= 1 and len(kinds.get("square", [])) <= 1):
+    shapes = len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1
+    if shapes:   # both read: they alone say where the origin is
+        xs, ys = kinds["triangle"], kinds["square"]
+    if xs and ys and len(kinds.get("triangle", [])) <= 1 and len(kinds.get("square", [])) <= 1:
         found = [(int(t.kind == "triangle") + int(s.kind == "square"), *cell) for t in xs for s in ys
                  if t is not s and (cell := _cell_frame(pl, t, s)) is not None]
-        best = sorted((off, frame) for n, off, frame in found if n == max((n for n, _, _ in found), default=0))
+        most = max((n for n, _, _ in found), default=0)
+        best = sorted(((off, frame) for n, off, frame in found if n == most), key=lambda f: f[0])
         if len(best) == 1 or (len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
             return best[0][1]
-        if len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1 and not found:
+        if shapes:
             return None, "a square and a triangle marker were found but do not span one lattice cell"
+        if best:
+            return None, (f"{len(best)} pairs of the markers found span a lattice cell, their markers as near "
+                          "their holes: which is the plate's is not told")
     frames = kinds.get("frame", [])
     if len(frames) == 1:
         n = np.rint(pl.locate(frames[0].centre)).astype(int)

@@ -10,8 +10,9 @@
    whose shape blur hid stands for either marker (:func:`slmlab.images.lattice.origin_frame` tells them apart
    by their places); where fewer than two were read, holes that stand out of their neighbours
    (:func:`filled_holes`).
-4. **Painting out** (:func:`painted_out`): a solid marker is replaced by the local background as far as its
-   blurred edge reaches, no nearer a dot than to it, so that it does not pull the dot's centre.
+4. **Painting out** (:func:`painted_out`): on a two-level plate a solid marker read from its outline is
+   replaced by the local background as far as its blurred edge reaches, no nearer a dot than to it, so that it
+   does not pull the dot's centre (a filled hole has no outline and is left).
 """
 
 from __future__ import annotations
@@ -74,7 +75,23 @@ def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: f
     z = (cv2.GaussianBlur(p[0].astype(np.float32), (0, 0), 1.0) - background) / spread
     contours, hier = cv2.findContours(((-z if con.dark else z) > level).astype(np.uint8), cv2.RETR_CCOMP,
                                       cv2.CHAIN_APPROX_NONE, offset=tuple(int(v) for v in base[0] - half))
-    return contours, (hier[0] if contours else None)
+    return contours, (hier[0] if contours else np.empty((0, 4), int))
+
+
+def _outer(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> list:
+    """The outer outlines of candidate ``k`` at ``level`` (:func:`_outlines`) that the patch does not cut (a
+    piece of a neighbour at its edge): each ``(contour, area [px²], centroid [px], solid)``."""
+    contours, hier = _outlines(img, con, cand, k, level)
+    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+    lo, hi = np.rint(cand.xy[k]).astype(int) - half, np.rint(cand.xy[k]).astype(int) + half
+    parts = []
+    for j, hh in enumerate(hier):
+        c = contours[j].reshape(-1, 2)
+        if hh[3] == -1 and (c > lo).all() and (c < hi).all():
+            m = cv2.moments(contours[j].astype(np.float32))
+            centre = np.array([m["m10"], m["m01"]]) / max(m["m00"], 1e-9)
+            parts.append((contours[j], m["m00"], centre, not (hier[:, 3] == j).any()))
+    return parts
 
 
 def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> str | None:
@@ -95,23 +112,15 @@ def split_marker(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level
                  dot_area_px: float):
     """A solid marker (triangle or square) that the reduced image joined to the dot of candidate ``k``: of the
     separate outlines at ``level`` [noise σ] on the full-resolution image (:func:`_outlines`), one is the dot
-    (its centroid within ``tol_px`` of its lattice node ``node_xy`` [px], its area at least half the dots'
-    ``dot_area_px`` at their reference level) and the largest other one a solid shape of 0.1-1 of the dot's
+    (the outline nearest its lattice node ``node_xy`` [px], within ``tol_px``, of at least half the dots'
+    area ``dot_area_px`` at their reference level) and the largest other one a solid shape of 0.1-1 of the dot's
     area at that level (not a glyph of a text strip that the lattice crosses): the :class:`Marker`
     :func:`polygon_kind` names, or a ``'blob'`` if it is a quarter of the dot's area or more and 1.5 of its
     radii from it (at the outline's centroid), and its outline (full-image pixels); ``None`` if there is no
     such pair."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
-    lo, hi = np.rint(cand.xy[k]).astype(int) - half, np.rint(cand.xy[k]).astype(int) + half
-    parts = []
-    for j, hh in enumerate(hier if contours else []):
-        c = contours[j].reshape(-1, 2)
-        if hh[3] == -1 and (c > lo).all() and (c < hi).all():   # not a piece of a neighbour the patch cuts
-            m = cv2.moments(contours[j].astype(np.float32))
-            centre = np.array([m["m10"], m["m01"]]) / max(m["m00"], 1e-9)
-            parts.append((contours[j], m["m00"] / dot_area_px, centre, not any(h[3] == j for h in hier)))
-    dot = [i for i, p in enumerate(parts) if np.hypot(*(p[2] - node_xy)) < tol_px and p[1] > 0.5]
+    parts = [(c, area / dot_area_px, centre, solid) for c, area, centre, solid in _outer(img, con, cand, k, level)]
+    near = [np.hypot(*(p[2] - node_xy)) for p in parts]
+    dot = [i for i in np.argsort(near, kind="stable") if near[i] < tol_px and parts[i][1] > 0.5][:1]
     others = [p for i, p in enumerate(parts) if dot and i != dot[0] and 0.1 < p[1] / parts[dot[0]][1] < 1]
     if not others:
         return None
@@ -124,10 +133,12 @@ def split_marker(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level
     return None if kind is None else (Marker(kind, (float(centre[0]), float(centre[1]))), cnt)
 
 
-def marker_outline(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> np.ndarray:
-    """The largest outline of candidate ``k`` at ``level`` [noise σ] (:func:`_outlines`; full-image pixels)."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    return max((c for c, hh in zip(contours, hier) if hh[3] == -1), key=cv2.contourArea)
+def marker_outline(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> np.ndarray | None:
+    """The outline of candidate ``k`` at ``level`` [noise σ] that holds its centre (:func:`_outer`; full-image
+    pixels), not a piece of a neighbour beside it; ``None`` if none does."""
+    xy = tuple(float(v) for v in cand.xy[k])
+    held = [c for c, _, _, _ in _outer(img, con, cand, k, level) if cv2.pointPolygonTest(c, xy, False) >= 0]
+    return held[0] if held else None
 
 
 def painted_out(img: np.ndarray, outlines: list, values: list, grow_px: int, dots_xy: np.ndarray,
@@ -139,6 +150,9 @@ def painted_out(img: np.ndarray, outlines: list, values: list, grow_px: int, dot
     out = img.copy()
     h, w = img.shape
     tree = cKDTree(dots_xy)
+    if np.issubdtype(img.dtype, np.integer):   # the background rounded into the image's range
+        info = np.iinfo(img.dtype)
+        values = [np.clip(np.rint(v), info.min, info.max) for v in values]
     for cnt, value in zip(outlines, values):
         x, y, bw, bh = cv2.boundingRect(cnt)
         x0, y0, x1, y1 = max(x - grow_px, 0), max(y - grow_px, 0), min(x + bw + grow_px, w), min(y + bh + grow_px, h)
@@ -250,10 +264,10 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
     keep &= cKDTree(xy).query(holes)[0] > 0.25 * fit.pitch
     if read:
         keep &= cKDTree([m.centre for m in read]).query(holes)[0] > 0.25 * fit.pitch
+    if len(holes) < 9:
+        return []
     r = np.clip(np.rint(con.to_reduced(holes)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     z = con.z[r[:, 1], r[:, 0]]
-    if len(z) < 9:
-        return []
     around = np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # its neighbour holes, empty
     peak = float(np.median(cand.peak[fit.on]))
     filled = keep & (z - around >= max(0.5 * peak, SEARCH_SIGMA))
