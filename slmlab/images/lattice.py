@@ -223,8 +223,8 @@ _PP = np.array([(i, j) for i, j in combinations(range(len(_PAIRS)), 2) if not se
 
 
 def _cos(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cosine of the angle between the rows of ``a`` and ``b`` ``(n, 2)``."""
-    return (a * b).sum(-1) / np.maximum(np.hypot(*a.T) * np.hypot(*b.T), 1e-9)
+    """Cosine of the angle between the vectors ``a`` and ``b`` ``(…, 2)`` (along their last axis)."""
+    return (a * b).sum(-1) / np.maximum(np.hypot(a[..., 0], a[..., 1]) * np.hypot(b[..., 0], b[..., 1]), 1e-9)
 
 
 def _paired_steps(vec: np.ndarray, length: np.ndarray, hypotheses: int = 3):
@@ -242,7 +242,7 @@ def _paired_steps(vec: np.ndarray, length: np.ndarray, hypotheses: int = 3):
     size = np.hypot(half[..., 0], half[..., 1])
     m1, m2, h1, h2 = mid[:, _PP[:, 0]], mid[:, _PP[:, 1]], half[:, _PP[:, 0]], half[:, _PP[:, 1]]
     s1, s2 = size[:, _PP[:, 0]], size[:, _PP[:, 1]]
-    cos = np.abs((h1 * h2).sum(-1)) / np.maximum(s1 * s2, 1e-9)
+    cos = np.abs(_cos(h1, h2))
     near = np.hypot(*(m1 - m2).transpose(2, 0, 1)) < 0.2 * length[:, :1]
     ok = near & (cos < 0.57) & (np.maximum(s1, s2) < 3.0 * np.minimum(s1, s2))
     cost = np.where(ok, s1 + s2, np.inf)

@@ -60,11 +60,16 @@ def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     return "square" if square else None
 
 
+def _half_side(con: Contrast, cand: Candidates, k: int) -> int:
+    """Half the side [px] of the full-resolution patch :func:`_outlines` reads candidate ``k`` on."""
+    return int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+
+
 def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float):
     """The outlines of candidate ``k`` at ``level`` [noise σ] on the full-resolution image (lightly smoothed)
     against the local background and spread at the candidate: the contours (full-image pixels) and their
     hierarchy (:func:`cv2.findContours`, two levels)."""
-    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+    half = _half_side(con, cand, k)
     p, base = gather_patches(img, cand.xy[k:k + 1], half)
     # the background and spread at every pixel of the patch (bilinear on the reduced mesh): a window streak
     # or a gradient across a marker would join its outline to the background's
@@ -82,7 +87,7 @@ def _outer(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: floa
     """The outer outlines of candidate ``k`` at ``level`` (:func:`_outlines`) that the patch does not cut (a
     piece of a neighbour at its edge): each ``(contour, area [px²], centroid [px], solid)``."""
     contours, hier = _outlines(img, con, cand, k, level)
-    half = int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+    half = _half_side(con, cand, k)
     lo, hi = np.rint(cand.xy[k]).astype(int) - half, np.rint(cand.xy[k]).astype(int) + half
     parts = []
     for j, hh in enumerate(hier):
@@ -223,14 +228,19 @@ def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: Lattic
     return found
 
 
+def _holes(fit: LatticeFit, cells: np.ndarray) -> np.ndarray:
+    """Image positions [px] of a two-level plate's holes at lattice cells ``cells`` (node + 0.5), on the first
+    level's plane and then on the second's."""
+    return np.vstack([fit.model.base(cells), fit.model.second.base(cells)])
+
+
 def in_hole(fit: LatticeFit, xy: np.ndarray) -> np.ndarray:
     """Whether points ``xy`` [px] are in a hole of a two-level plate: within a quarter step of the centre of
     a lattice cell on either level's plane (the markers are on the level whose parity the lattice does not yet
     know); never on a one-level plate."""
     if fit.model.second is None:
         return np.zeros(len(xy), bool)
-    cells = fit.nodes(grow=1) + 0.5
-    d, _ = cKDTree(np.vstack([fit.model.base(cells), fit.model.second.base(cells)])).query(xy)
+    d, _ = cKDTree(_holes(fit, fit.nodes(grow=1) + 0.5)).query(xy)
     return d < 0.25 * fit.pitch
 
 
@@ -259,7 +269,7 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
     have = {tuple(n) for n in nodes}
     inner = np.array([all((a + i, b + j) in have for i in (0, 1) for j in (0, 1)) for a, b in corners])
     cells = corners[inner] + 0.5        # within the plate: the four dots around the hole found
-    holes = np.vstack([fit.model.base(cells), fit.model.second.base(cells)])
+    holes = _holes(fit, cells)
     keep = inside_image(holes, shape, 2 * np.sqrt(np.median(cand.area[fit.on]) / np.pi))
     keep &= cKDTree(xy).query(holes)[0] > 0.25 * fit.pitch
     if read:
