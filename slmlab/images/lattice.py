@@ -301,28 +301,55 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     return _Seed(int(idx[k]), u[k], v[k], p[k])
 
 
+#: a seed's lattice is counted within this many steps of it (:func:`_held`), where its affine steps still hold
+#: under strong perspective
+SEED_REACH = 2
+
+
 def _banded_seed(xy: np.ndarray, area: np.ndarray, two_level: bool = False) -> _Seed | None:
     """:func:`_seed` among candidates of similar area: in overlapping bands of a factor 6 of area (so that
     many small blobs, hot pixels or text, do not hide the lattice of the dots), tried from the most
-    populated band down until a seed has all eight neighbours; the best-supported seed, ties to the band
-    with more candidates. Returns the seed (its index into ``xy``)."""
+    populated band down until a seed has all eight neighbours and its lattice holds at least half of the
+    candidates of its area around it (:func:`_held`); the best-supported seed, ties to the one whose lattice
+    holds the most. A band of clutter and the smaller of the dots can hold a lattice of every third line with all
+    eight neighbours (stereo-dic:17 beside a glare: 27 of the 81 dots, numbered three columns off)."""
     if len(xy) < 9:
         return None
     la = np.log2(np.maximum(area, 1e-3))
     bands = [np.flatnonzero((la >= lo) & (la < lo + np.log2(6)))
              for lo in np.arange(np.floor(la.min()), la.max() + 1e-9, 1.0)]
-    best, best_support = None, -1
+    best, best_rank = None, (-1, -1)
     for sel in sorted((b for b in bands if len(b) >= 9), key=len, reverse=True):
         s = _seed(xy[sel], area[sel], two_level=two_level)
         if s is None:
             continue
         s.k = int(sel[s.k])
-        support = _support(xy, area, s)
-        if support > best_support:
-            best, best_support = s, support
-        if best_support == 8:
+        held, around = _held(xy, area, s)
+        rank = (_support(xy, area, s), held)
+        if rank > best_rank:
+            best, best_rank = s, rank
+        if rank[0] == 8 and held and 2 * held >= around:
             break
     return best
+
+
+def _held(xy: np.ndarray, area: np.ndarray, s: _Seed, reach: int = SEED_REACH) -> tuple[int, int]:
+    """``(held, around)``: how many candidates with an area within a factor 2 of seed ``s``'s lie on its lattice
+    (within 0.2 of a step of a node, the odd nodes offset by ``s.p``), and how many lie around it, within
+    ``reach`` steps of it (where its affine steps hold)."""
+    basis = np.column_stack([s.u, s.v])
+    if abs(np.linalg.det(basis)) < 1e-9:
+        return 0, 0
+    step = min(np.hypot(*s.u), np.hypot(*s.v))
+    similar = (area > area[s.k] / 2) & (area < 2 * area[s.k])
+    held, around = np.zeros(len(xy), bool), np.zeros(len(xy), bool)
+    for parity, offset in ((0, np.zeros(2)), (1, s.p)):
+        q = np.linalg.solve(basis, (xy - xy[s.k] - offset).T).T
+        node = np.rint(q)
+        near = np.abs(node).max(axis=1) <= reach
+        around |= near
+        held |= near & (np.hypot(*((q - node) @ basis.T).T) < 0.2 * step) & (np.abs(node.sum(axis=1)) % 2 == parity)
+    return int((held & similar).sum()), int((around & similar).sum())
 
 
 def _support(xy: np.ndarray, area: np.ndarray, s: _Seed) -> int:
@@ -466,7 +493,7 @@ def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> Lat
     (:func:`_unshear`); ``None`` if no seed is found. ``two_level``: the plate's second level is offset by
     its parallax (:class:`LatticeModel`). A one-level lattice that skips every other line is refined to the
     half step and grown on (:func:`_half_step`; again while it holds candidates at half steps, up to three
-    times)."""
+    times). ``None`` too where the seed's lattice grows to fewer than nine candidates."""
     use = np.flatnonzero(~cand.border)
     xy, area = cand.xy[use], cand.area[use]
     s = _banded_seed(xy, area, two_level)
@@ -478,6 +505,8 @@ def fit_lattice(cand, shape: tuple[int, int], *, two_level: bool = False) -> Lat
     fit = LatticeFit(start, np.zeros((len(xy), 2), int), np.zeros(len(xy), bool), (-1, 1, -1, 1),
                      float(min(np.hypot(*s.u), np.hypot(*s.v))))
     ab, j = _grow(fit, xy, area, float(area[s.k]), shape, two_level)
+    if len(j) < 9:   # a seed whose steps hold nothing beyond its neighbours (a wrong polarity's clutter)
+        return None
     for _ in range(0 if two_level else 3):
         finer = _half_step(fit, ab, j, xy, area)
         if finer is None:
@@ -548,6 +577,8 @@ def _grow(fit: LatticeFit, xy: np.ndarray, area: np.ndarray, ref_area: float, sh
         a0, a1, b0, b1 = box
         inb = (nodes[hit, 0] >= a0) & (nodes[hit, 0] <= a1) & (nodes[hit, 1] >= b0) & (nodes[hit, 1] <= b1)
         hit, j = hit[inb], j[inb]
+        if len(j) < 9:   # fewer than a seed and its eight neighbours: no lattice (:func:`fit_lattice`)
+            break
         fit.model = fit_model(nodes[hit].astype(float), xy[j], two_level=two_level)
         fit.box, ref_area = box, float(np.median(area[j]))
         state = (box, tuple(j))
