@@ -142,12 +142,23 @@ HALF_LOST = Degradations(dark=True, background_dn=143.38601481193888, contrast_d
 CROWDED = Degradations(bits=8, dark=False, background_dn=5.0, contrast_dn=79.0, read_noise_dn=0.5)
 
 
+#: the thorough profile's find: greenough:7201 under dark dots 25 DN below a 222 DN plate, window streaks and a
+#: text strip. The strip set the sweep's top level, its second at 9 σ lost 30 of 49 dots ("no dots found"); a
+#: bright streak down a column of dots was read from the quartile nearer zero and hid them
+#: (:func:`slmlab.images.dots._ladder`, :func:`slmlab.images.dots.column_offsets`). Another streak saturates half
+#: of a column of dots, which are still taken at their crescents' centres, 5.8 px off (under this test's 0.3 of a
+#: pitch; not solved)
+STREAKS_AND_STRIP = Degradations(dark=True, background_dn=222.0, contrast_dn=25.0, read_noise_dn=1.25, streaks=0.23,
+                                 text_strip_px=25)
+
+
 @pytest.mark.slow  # rigs and cameras drawn at random, rendered and extracted (seconds each)
 @settings(max_examples=max(4, settings.default.max_examples // 10))  # 4 at the quick profile, 30 thorough
 @given(kind=st.sampled_from(["greenough", "stereo-dic", "stereo-piv"]), seed=st.integers(10, 10_000),
        camera=cameras())
 @example(kind="stereo-piv", seed=11, camera=HALF_LOST)
 @example(kind="stereo-piv", seed=5216, camera=CROWDED)
+@example(kind="greenough", seed=7201, camera=STREAKS_AND_STRIP)
 def test_a_camera_drawn_at_random_on_a_rig_drawn_at_random_has_every_visible_dot_found_and_numbered(
         kind, seed, camera, tmp_path_factory):
     """Every visible dot of the rig's plate (whole in view, two Z positions) found and none numbered wrongly

@@ -10,12 +10,14 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
    image's smaller side) the background is the cells' median and the spread the half-width of the dot-free
    side of their histogram (median minus 16th percentile for bright dots); both meshes are median-filtered
    over 3 × 3 cells and interpolated. Window streaks, narrower than a cell, are the background's columns
-   (:func:`column_offsets`): where they stand out of the noise the mesh is taken again less them, and they
-   join the background. ``z = ±(I − background) / spread`` is the contrast in noise units, dots positive,
-   whatever the illumination, offset, bit depth, streaks or a bright region beside the plate.
+   (:func:`column_offsets`): where the offsets both quartiles of a column agree on stand out of the noise, the
+   offsets read on the dots' free side are taken out, the mesh again less them, and they join the background. ``z = ±(I − background) / spread`` is the
+   contrast in noise units, dots positive, whatever the illumination, offset, bit depth, streaks or a bright
+   region beside the plate.
 2. **Threshold sweep** (:func:`sweep`), OpenCV's SimpleBlobDetector idea on ``z`` instead of the raw image
    (whose one level per image a bright region or a gradient defeats): :data:`LEVELS` levels from
-   :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric); each level's connected components
+   :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric, and one at :data:`SECOND_LEVEL` × the
+   lowest, whatever sets the top); each level's connected components
    are tracked to the level below by containment (their centroid pixel), or by the nearest centroid for
    rings. A blob seen at two levels or more is a candidate, and on a two-level plate so is one split off a
    larger blob at one level only, with an outline that can show a shape (a marker beside a dot); its outline
@@ -41,16 +43,19 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 
-__all__ = ["LOWEST_SIGMA", "LEVELS", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA", "STRONG_SHARE", "STRONG_SIGMA",
+__all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
+           "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
+           "gather_patches", "Contrast", "ContrastMesh", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
            "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
 LOWEST_SIGMA = 3.0
 #: the number of levels of the sweep
 LEVELS = 6
+#: the sweep has a level at this many times its lowest (:func:`_ladder`)
+SECOND_LEVEL = 2.0
 #: on a two-level plate, a blob seen at one level only that split off a larger blob there is a candidate if its
 #: area [px², full resolution] is at least this, the least a marker's outline needs to show its shape
 #: (:func:`slmlab.images.markers.polygon_kind`): the levels are a factor 3 apart, so a marker that parallax
@@ -80,7 +85,8 @@ HOT_SHARE = 0.75
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
 STREAK_BANDS = 8
-#: ... a column's offset is read from these quantiles of its pixels in the band, where they agree
+#: ... a column's offset is read from these quantiles of its pixels in the band: the 1st for bright dots, the 3rd
+#: for dark ones (the side the dots do not reach)
 STREAK_QUARTILES = (0.25, 0.75)
 #: the mesh statistics are taken again less the columns' offsets where more than this share of them is beyond
 #: the noise (the rendered zoo's window streaks: 0.21-0.31 of the columns; clean plates up to 0.11, from a
@@ -245,25 +251,51 @@ def _reduced(img: np.ndarray) -> tuple[np.ndarray, int]:
     return cv2.GaussianBlur(small, (0, 0), 1.0), r
 
 
+@dataclass
+class ContrastMesh:
+    """What the local contrast of an image (:func:`local_contrasts`) does not owe to the dots' polarity: the
+    reduced, smoothed image, its reduction factor, the mesh's cell [reduced px], background and spreads (for
+    bright and for dark dots) and the columns' streak offsets (:func:`column_offsets`)."""
+
+    small: np.ndarray
+    scale: int
+    cell: int
+    background: np.ndarray
+    spreads: tuple
+    streaks: tuple
+
+    @classmethod
+    def of(cls, img: np.ndarray) -> "ContrastMesh":
+        small, r = _reduced(img)
+        cell = max(8, int(min(img.shape) / 16 / r))
+        bg, *sds = _mesh_statistics(small, cell)
+        return cls(small, r, cell, bg, tuple(sds), column_offsets(small - bg))
+
+    def streaky(self, dark: bool) -> bool:
+        """Whether more than :data:`STREAK_SHARE` of the columns' offsets that both quartiles agree on stand out
+        of the noise (the spread for ``dark`` or bright dots): window streaks, which move a whole column."""
+        return bool(np.mean(np.abs(self.streaks[2][::8]) > np.median(self.spreads[int(dark)])) > STREAK_SHARE)
+
+    def contrast(self, dark: bool, sided: bool = True) -> Contrast:
+        """The local contrast for dark or bright dots; on a streaky image (:meth:`streaky`) the columns' offsets
+        read on the dots' free side (``sided``) or where both quartiles agree (:func:`column_offsets`) join the
+        background, the mesh taken again less them."""
+        b, sd = self.background, self.spreads[int(dark)]
+        if self.streaky(dark):
+            s = self.streaks[int(dark) if sided else 2]
+            again = _mesh_statistics(self.small - s, self.cell)
+            b, sd = again[0] + s, again[1 + int(dark)]
+        z = (self.small - b) / sd
+        return Contrast(-z if dark else z, self.scale, b, sd, -self.small if dark else self.small, dark)
+
+
 def local_contrasts(img: np.ndarray, polarities=(False, True)) -> list[Contrast]:
     """The local-contrast image of ``img`` (module docstring, step 1), one per polarity in ``polarities``
-    (``dark``: True or False). The reduction, the mesh and the streak columns do not depend on the polarity
-    and are computed once; the mesh is taken again less the streaks for the polarities whose gate fires."""
-    small, r = _reduced(img)
-    cell = max(8, int(min(img.shape) / 16 / r))
-    bg, *sds = _mesh_statistics(small, cell)
-    streaks = column_offsets(small - bg)
-    again = None
-    out = []
-    for dark in polarities:
-        b, sd = bg, sds[int(dark)]
-        if np.mean(np.abs(streaks[::8]) > np.median(sd)) > STREAK_SHARE:
-            if again is None:
-                again = _mesh_statistics(small - streaks, cell)
-            b, sd = again[0] + streaks, again[1 + int(dark)]
-        z = (small - b) / sd
-        out.append(Contrast(-z if dark else z, r, b, sd, -small if dark else small, dark))
-    return out
+    (``dark``: True or False). The reduction, the mesh and the columns' quartiles do not depend on the polarity
+    and are computed once (:class:`ContrastMesh`); on a streaky image each polarity reads its streaks from the
+    dots' free side, and its mesh is taken again less them."""
+    mesh = ContrastMesh.of(img)
+    return [mesh.contrast(dark) for dark in polarities]
 
 
 def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
@@ -271,26 +303,31 @@ def local_contrast(img: np.ndarray, *, dark: bool) -> Contrast:
     return local_contrasts(img, (dark,))[0]
 
 
-def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> np.ndarray:
+def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Window streaks: each column's offset ``(h, w)`` [grey levels] of ``residual`` (an image less its mesh
-    background), per band of rows (:data:`STREAK_BANDS` bands down the image, at least 16 rows each), linear between the
-    bands' middles. A streak moves all of a column's pixels, a dot only those on its own side: a column's
-    offset is that of its 1st and 3rd quartiles (:data:`STREAK_QUARTILES`, each less its median over the
-    band's columns) that is nearer zero where they agree in sign, else zero; so neither dark nor bright dots,
-    up to three quarters of a column over a band, pass for a streak (a column through dot centres on a clean
-    plate moves by a fraction of the noise). A median cell of the mesh, 1/16 of the image, spread a streak
-    narrower than itself over its neighbours and lost the dots beside it to the spread it added."""
+    background), per band of rows (:data:`STREAK_BANDS` bands down the image, at least 16 rows each), linear
+    between the bands' middles; ``(for bright dots, for dark dots, agreed)``. A streak moves all of a column's
+    pixels, a dot only those on its own side: for dots of a known polarity a column's offset is that of the
+    quartile on the dots' free side (:data:`STREAK_QUARTILES`: the 1st for bright dots, the 3rd for dark ones),
+    less its median over the band's columns, so that dots covering up to a quarter of a column over a band do not
+    pass for a streak, nor up to three quarters hide one; the quartile nearer zero of the two, where they agree in
+    sign (``agreed``), missed a bright streak down a column of dark dots (by 16 of its 20 grey levels on
+    ``greenough:7201``), whose dots it then hid. Where the polarity is not known, ``agreed``: read on one side, a
+    column of dots passes for a streak of the other polarity, which builds a lattice between the dots. A median
+    cell of the mesh, 1/16 of the image, spread a streak narrower than itself over its neighbours and lost the
+    dots beside it to the spread it added."""
     h, w = residual.shape
     n = max(1, min(bands, h // 16))
     edges = np.linspace(0, h, n + 1).astype(int)
-    prof = np.empty((n, w), np.float32)
+    prof = np.empty((3, n, w), np.float32)
     for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         cols = np.ascontiguousarray(residual[a:b:2].T)   # every other row: half the time, as good
         k = [int(q * (cols.shape[1] - 1)) for q in STREAK_QUARTILES]
-        lo, hi = np.sort(cols, axis=1)[:, k].T
-        lo, hi = lo - np.median(lo), hi - np.median(hi)
-        prof[i] = np.where(lo * hi > 0, np.where(np.abs(lo) < np.abs(hi), lo, hi), 0.0)
-    return cv2.resize(prof, (w, h), interpolation=cv2.INTER_LINEAR)
+        quartiles = np.sort(cols, axis=1)[:, k].T
+        prof[:2, i] = quartiles - np.median(quartiles, axis=1, keepdims=True)
+        lo, hi = prof[:2, i]
+        prof[2, i] = np.where(lo * hi > 0, np.where(np.abs(lo) < np.abs(hi), lo, hi), 0.0)
+    return tuple(cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in prof)
 
 
 # ------------------------------------------------------------------------------------------ sweep
@@ -320,6 +357,8 @@ class Candidates:
         split off a larger blob, such as a fragment of a textured dot).
     low
         the level it was first seen at [noise σ] (its widest outline: for thin markers).
+    low_area, low_size
+        its area [px²] and bounding box ``(n, 2)`` [px] at that level.
     noise
         blobs seen at one level only (not candidates; counted), but those split off a larger blob
         (:data:`SPLIT_AREA_PX`).
@@ -335,18 +374,28 @@ class Candidates:
     level: np.ndarray
     born: np.ndarray
     low: np.ndarray
+    low_area: np.ndarray
+    low_size: np.ndarray
     noise: int = 0
 
     def __len__(self) -> int:
         return len(self.xy)
 
 
-def _ladder(z: np.ndarray, levels: int) -> np.ndarray:
+def _ladder(z: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray]:
     """Geometric threshold ladder from :data:`LOWEST_SIGMA` to the 99.95th percentile of ``z`` (at least
-    4 × the lowest) [noise σ]."""
+    4 × the lowest) [noise σ], with a level at :data:`SECOND_LEVEL` × the lowest added where the second is above
+    it, and which levels may be a blob's reference level (not the added one: the outlines and areas the dots are
+    refined from stay those of the geometric ladder). A blob that reaches the added level is seen at two levels, a
+    candidate, however high the image's top (a camera's text strip or a glare sets it, not the dots: on
+    ``greenough:7201`` the second level was at 9 σ and 30 of the 49 dots, at 6-9 σ, were noise)."""
     top = float(np.percentile(z[::3, ::3], 99.95))
     top = min(max(top, 4 * LOWEST_SIGMA), 1e4)
-    return LOWEST_SIGMA * (top / LOWEST_SIGMA) ** (np.arange(levels) / (levels - 1))
+    ts = LOWEST_SIGMA * (top / LOWEST_SIGMA) ** (np.arange(levels) / (levels - 1))
+    ref = np.ones(len(ts), bool)
+    if levels < 2 or ts[1] <= SECOND_LEVEL * LOWEST_SIGMA:
+        return ts, ref
+    return np.insert(ts, 1, SECOND_LEVEL * LOWEST_SIGMA), np.insert(ref, 1, False)
 
 
 @dataclass
@@ -414,7 +463,7 @@ def sweep(con: Contrast, *, levels: int = LEVELS, split: bool = False) -> Candid
     """Blobs stable over a threshold sweep of the local contrast (module docstring, step 2); with ``split`` (a
     two-level plate, whose markers parallax brings beside a dot) also those split off a larger blob at one level
     only (:data:`SPLIT_AREA_PX`)."""
-    ts = _ladder(con.z, levels)
+    ts, ref_ok = _ladder(con.z, levels)
     recs, prev, next_id = [], None, 0
     for k, t in enumerate(ts):
         cur = _components(con.z, t)
@@ -427,11 +476,13 @@ def sweep(con: Contrast, *, levels: int = LEVELS, split: bool = False) -> Candid
         if len(cur.xy) == 0:   # the levels nest: nothing above a level that holds no blob
             break
     rec = np.vstack(recs) if recs else np.empty((0, 10))
-    return _summarise(rec, ts, con, split)
+    return _summarise(rec, ts, con, split, ref_ok)
 
 
-def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast, split: bool = False) -> Candidates:
-    """Per-track candidates from the sweep's records ``(id, level, cx, cy, x, y, w, h, area, own centroid)``."""
+def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast, split: bool = False,
+               ref_ok: np.ndarray | None = None) -> Candidates:
+    """Per-track candidates from the sweep's records ``(id, level, cx, cy, x, y, w, h, area, own centroid)``;
+    ``ref_ok``: the levels that may be a reference level (:func:`_ladder`)."""
     rec = rec[np.lexsort((rec[:, 1], rec[:, 0]))]
     ids, start, count = np.unique(rec[:, 0].astype(int), return_index=True, return_counts=True)
     first = rec[start, 1].astype(int)
@@ -448,14 +499,15 @@ def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast, split: bool = Fal
     hs, ws = con.z.shape
     cx, cy = np.clip(np.rint(top[:, 2]).astype(int), 0, ws - 1), np.clip(np.rint(top[:, 3]).astype(int), 0, hs - 1)
     peak = np.maximum(ts[last], con.z[cy, cx])
-    ref = np.clip(np.searchsorted(ts, peak / 2, side="right") - 1, first, last)
+    eligible = np.flatnonzero(np.ones(len(ts), bool) if ref_ok is None else ref_ok)
+    ref = np.clip(eligible[np.maximum(np.searchsorted(ts[eligible], peak / 2, side="right") - 1, 0)], first, last)
     r = rec[start + ref - first]
     area = r[:, 8]
     x, y, w, h = r[:, 4], r[:, 5], r[:, 6], r[:, 7]
     border = (x <= 0) | (y <= 0) | (x + w >= ws) | (y + h >= hs)
     hole = r[:, 9] == 0
     return Candidates(con.to_full(r[:, 2:4]), area * s * s, np.column_stack([w, h]) * s, count, peak,
-                      border, hole, ts[ref], first, ts[first], noise)
+                      border, hole, ts[ref], first, ts[first], rec[start, 8] * s * s, rec[start, 6:8] * s, noise)
 
 
 
