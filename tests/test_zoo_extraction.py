@@ -393,7 +393,10 @@ def test_a_two_level_plate_whose_parallax_brings_a_dot_beside_the_square_is_read
 
 #: cameras drawn by the stress of two-level plates under random cameras (random_rig(kind, seed), two-level-2z)
 #: that left images unnumbered: a square joined to a dot at every level of the sweep by 2.6 px of defocus; a
-#: square of 84 px², too small to show its corners; both markers rounded by 4.2 px of defocus into blobs
+#: square of 84 px², too small to show its corners; both markers rounded by 4.2 px of defocus into blobs; markers
+#: as plain as the dots beside them but at a fifth of the median dot's peak under streaks and a glare, and a
+#: square read in the glare far from them; a square joined to a dot at the lower levels only, 1.21 times a dot
+#: at the blob's own; a square beside a dot seen apart at one level, its patch around the dot's outline there
 TWO_LEVEL_CAMERAS = {
     ("stereo-dic", 13): Degradations(background_dn=28.54308569538692, contrast_dn=80.94606342291328,
                                      defocus_px=2.619645637574393, focus_angle_deg=151.78735054256188,
@@ -404,6 +407,15 @@ TWO_LEVEL_CAMERAS = {
     ("greenough", 14): Degradations(dark=True, background_dn=218.7761287683544, contrast_dn=149.0725800521488,
                                     defocus_px=4.216637312384123, focus_angle_deg=33.09448156460209,
                                     read_noise_dn=1.778484310124298, bright_region=1.0078436652926719),
+    ("greenough", 19): Degradations(dark=True, background_dn=171.3572580675969, contrast_dn=128.5939934833036,
+                                    focus_angle_deg=93.4857508949433, read_noise_dn=1.0306625112383034,
+                                    shot_dn_per_e=0.09523246603109908, bright_region=0.9331913770925311,
+                                    streaks=0.3280952938701499, text_strip_px=31),
+    ("stereo-dic", 20): Degradations(bits=16, background_dn=1958.2072936156428, contrast_dn=29022.944912182586,
+                                     defocus_px=2.447345578720355, focus_angle_deg=156.56805609297996,
+                                     read_noise_dn=184.812878202791, gradient=0.6995252312165219,
+                                     gradient_angle_deg=269.74975110368365, vignetting=0.5318692890485981),
+    ("stereo-piv", 11): HALF_LOST,
 }
 
 

@@ -34,7 +34,8 @@ from scipy.spatial import cKDTree
 from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
 from .dots import Candidates, Contrast, ContrastMesh, clean_hot_pixels, read_image, search_missing, sweep
-from .markers import filled_holes, joined_markers, marker_outline, off_lattice_markers, painted_out
+from .markers import (distinct_markers, filled_holes, joined_markers, marker_outline, off_lattice_markers,
+                      painted_out)
 from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
                       lattice_residual_px, number_plate, origin_frame, plate_lattice, robust_model, similar_area)
 
@@ -207,15 +208,19 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
 def _read_markers(loc: _Located) -> None:
     """Why each candidate off the lattice is off it, and the plate's markers (:func:`_candidate_reasons`, with
     on a two-level plate those joined to a dot too: :func:`slmlab.images.markers.joined_markers`, whose dots
-    take the dots' median area; where fewer than two were read, :func:`slmlab.images.markers.filled_holes`),
+    take the dots' median area, and where a triangle and a square were not both read so, those joined to a dot
+    at the lower levels of the sweep only; where fewer than two were read, :func:`slmlab.images.markers.filled_holes`),
     into ``loc.reason`` and ``loc.markers``. On a two-level plate the solid ones read from their outlines
     (triangles, squares, blobs in holes) are painted out of ``loc.clean``
     (:func:`slmlab.images.markers.painted_out`) so that a marker beside a dot does not pull its centre."""
     con, cand, fit = loc.con, loc.cand, loc.fit
     two_level = fit.model.second is not None
     split = joined_markers(loc.clean, con, cand, fit) if two_level else []
-    loc.area = np.where(np.isin(loc.src, [k for k, _, _ in split]), float(np.median(cand.area[fit.on])), loc.area)
     loc.reason, loc.markers = _candidate_reasons(loc.clean, con, cand, fit, [m for _, m, _ in split])
+    if two_level and not {"triangle", "square"} <= {m.kind for m in loc.markers}:
+        split += joined_markers(loc.clean, con, cand, fit, lower=True)   # a marker joined lower down only
+        loc.reason, loc.markers = _candidate_reasons(loc.clean, con, cand, fit, [m for _, m, _ in split])
+    loc.area = np.where(np.isin(loc.src, [k for k, _, _ in split]), float(np.median(cand.area[fit.on])), loc.area)
     if not two_level:
         return
     if len(loc.markers) < 2:
@@ -372,7 +377,7 @@ def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: La
                        split: list = ()) -> tuple[np.ndarray, list]:
     """Why each candidate the lattice left off was left off (an array of reasons; on-lattice ones empty),
     and the markers among them (:func:`slmlab.images.markers.off_lattice_markers`), with those ``split`` off a
-    dot."""
+    dot (each once: :func:`slmlab.images.markers.distinct_markers`)."""
     nodes = fit.nodes(grow=2)
     d, j = cKDTree(fit.model.predict(nodes)).query(cand.xy)
     near = d < fit.tolerance(nodes[j])
@@ -391,7 +396,8 @@ def _candidate_reasons(img: np.ndarray, con: Contrast, cand: Candidates, fit: La
         reason[k] = fixed.get(c) or (f"off the lattice ({d[k]:.1f} px from the nearest node)" if c == 5 else
                                      f"too {'small' if ratio[k] < AREA_RANGE[0] else 'large'} ({ratio[k]:.2g} of the "
                                      "dots' median area)")
-    return reason, off_lattice_markers(img, con, cand, fit, reason, ratio) + list(split)
+    markers = off_lattice_markers(img, con, cand, fit, reason, ratio) + list(split)
+    return reason, distinct_markers(markers, fit.pitch / 4)
 
 
 def _report(cand: Candidates, reason: np.ndarray, searched, dropped: dict, expected: np.ndarray) -> pd.DataFrame:

@@ -749,7 +749,9 @@ def origin_frame(pl: PlateLattice, markers: list):
       two-level plate a **blob** in a hole (a marker whose shape defocus hid) stands for either: of the pairs
       that span a cell so, the one reading the most shapes, and of those the one whose markers lie nearest
       their holes (at most half as far as the next: two blobs span a cell from a dot of either level); where
-      a triangle and a square were both read, they alone;
+      triangles and squares were read, they alone, and one pair of them only (a square read in a glare far
+      from the plate's origin does not hide the pair that spans its cell); where only one of the two shapes was
+      read, the blobs stand for the other, as above;
     * a **frame** around a dot: that dot is the origin, ``+x`` along the image's ``w1`` and ``+y`` against
       ``w2`` (up in the image).
     """
@@ -757,19 +759,20 @@ def origin_frame(pl: PlateLattice, markers: list):
     for m in markers:
         kinds.setdefault(m.kind, []).append(m)
     blobs = kinds.get("blob", []) if pl.two_level else []
-    xs, ys = kinds.get("triangle", []) + blobs, kinds.get("square", []) + blobs
-    shapes = len(kinds.get("triangle", [])) == 1 and len(kinds.get("square", [])) == 1
-    if shapes:   # both read: they alone say where the origin is
-        xs, ys = kinds["triangle"], kinds["square"]
-    if xs and ys and len(kinds.get("triangle", [])) <= 1 and len(kinds.get("square", [])) <= 1:
+    triangles, squares = kinds.get("triangle", []), kinds.get("square", [])
+    shapes = bool(triangles) and bool(squares)
+    xs, ys = (triangles, squares) if shapes else (triangles + blobs, squares + blobs)   # read shapes: they alone
+    if xs and ys:
         found = [(int(t.kind == "triangle") + int(s.kind == "square"), *cell) for t in xs for s in ys
                  if t is not s and (cell := _cell_frame(pl, t, s)) is not None]
         most = max((n for n, _, _ in found), default=0)
         best = sorted(((off, frame) for n, off, frame in found if n == most), key=lambda f: f[0])
-        if len(best) == 1 or (len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
+        if len(best) == 1 or (not shapes and len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
             return best[0][1]
         if shapes:
-            return None, "a square and a triangle marker were found but do not span one lattice cell"
+            return None, (f"{len(best) or 'no'} pair(s) of the square(s) and triangle(s) found span one lattice "
+                          "cell" if len(triangles) + len(squares) > 2 else
+                          "a square and a triangle marker were found but do not span one lattice cell")
         if best:
             return None, (f"{len(best)} pairs of the markers found span a lattice cell, their markers as near "
                           "their holes: which is the plate's is not told")

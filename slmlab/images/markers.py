@@ -27,7 +27,8 @@ from .dots import SEARCH_SIGMA, Candidates, Contrast, gather_patches
 from .lattice import LatticeFit, inside_image
 
 __all__ = ["Marker", "polygon_kind", "marker_kind", "split_marker", "marker_outline", "painted_out", "MERGED_AREA",
-           "in_hole", "off_lattice_markers", "joined_markers", "filled_holes"]
+           "PLAIN_SHARE", "local_peak", "distinct_markers", "in_hole", "off_lattice_markers", "joined_markers",
+           "filled_holes"]
 
 
 @dataclass
@@ -60,16 +61,18 @@ def polygon_kind(cnt, area: float, has_hole: bool) -> str | None:
     return "square" if square else None
 
 
-def _half_side(con: Contrast, cand: Candidates, k: int) -> int:
-    """Half the side [px] of the full-resolution patch :func:`_outlines` reads candidate ``k`` on."""
-    return int(np.ceil(max(cand.size[k]) / 2 + 3 * con.scale))
+def _half_side(con: Contrast, cand: Candidates, k: int, widest: bool = False) -> int:
+    """Half the side [px] of the full-resolution patch :func:`_outlines` reads candidate ``k`` on: around its
+    outline at its reference level, or (``widest``) at the lowest level it was seen at, where a marker beside it
+    is joined to it."""
+    return int(np.ceil(max(cand.low_size[k] if widest else cand.size[k]) / 2 + 3 * con.scale))
 
 
-def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float):
+def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float, widest: bool = False):
     """The outlines of candidate ``k`` at ``level`` [noise σ] on the full-resolution image (lightly smoothed)
-    against the local background and spread at the candidate: the contours (full-image pixels) and their
-    hierarchy (:func:`cv2.findContours`, two levels)."""
-    half = _half_side(con, cand, k)
+    against the local background and spread at the candidate, on the patch of :func:`_half_side`: the contours
+    (full-image pixels) and their hierarchy (:func:`cv2.findContours`, two levels)."""
+    half = _half_side(con, cand, k, widest)
     p, base = gather_patches(img, cand.xy[k:k + 1], half)
     # the background and spread at every pixel of the patch (bilinear on the reduced mesh): a window streak
     # or a gradient across a marker would join its outline to the background's
@@ -83,11 +86,11 @@ def _outlines(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: f
     return contours, (hier[0] if contours else np.empty((0, 4), int))
 
 
-def _outer(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float) -> list:
+def _outer(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float, widest: bool = False) -> list:
     """The outer outlines of candidate ``k`` at ``level`` (:func:`_outlines`) that the patch does not cut (a
     piece of a neighbour at its edge): each ``(contour, area [px²], centroid [px], solid)``."""
-    contours, hier = _outlines(img, con, cand, k, level)
-    half = _half_side(con, cand, k)
+    contours, hier = _outlines(img, con, cand, k, level, widest)
+    half = _half_side(con, cand, k, widest)
     lo, hi = np.rint(cand.xy[k]).astype(int) - half, np.rint(cand.xy[k]).astype(int) + half
     parts = []
     for j, hh in enumerate(hier):
@@ -114,16 +117,18 @@ def marker_kind(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level:
 
 
 def split_marker(img: np.ndarray, con: Contrast, cand: Candidates, k: int, level: float, node_xy, tol_px: float,
-                 dot_area_px: float):
+                 dot_area_px: float, widest: bool = False):
     """A solid marker (triangle or square) that the reduced image joined to the dot of candidate ``k``: of the
-    separate outlines at ``level`` [noise σ] on the full-resolution image (:func:`_outlines`), one is the dot
+    separate outlines at ``level`` [noise σ] on the full-resolution image (:func:`_outlines`; with ``widest`` on a
+    patch around the blob at the lowest level it was seen at, where the marker was part of it), one is the dot
     (the outline nearest its lattice node ``node_xy`` [px], within ``tol_px``, of at least half the dots'
     area ``dot_area_px`` at their reference level) and the largest other one a solid shape of 0.1-1 of the dot's
     area at that level (not a glyph of a text strip that the lattice crosses): the :class:`Marker`
     :func:`polygon_kind` names, or a ``'blob'`` if it is a quarter of the dot's area or more and 1.5 of its
     radii from it (at the outline's centroid), and its outline (full-image pixels); ``None`` if there is no
     such pair."""
-    parts = [(c, area / dot_area_px, centre, solid) for c, area, centre, solid in _outer(img, con, cand, k, level)]
+    parts = [(c, area / dot_area_px, centre, solid)
+             for c, area, centre, solid in _outer(img, con, cand, k, level, widest)]
     near = [np.hypot(*(p[2] - node_xy)) for p in parts]
     dot = [i for i in np.argsort(near, kind="stable") if near[i] < tol_px and parts[i][1] > 0.5][:1]
     others = [p for i, p in enumerate(parts) if dot and i != dot[0] and 0.1 < p[1] / parts[dot[0]][1] < 1]
@@ -177,6 +182,30 @@ def painted_out(img: np.ndarray, outlines: list, values: list, grow_px: int, dot
 MERGED_AREA = 1.3
 
 
+#: a marker is as plain to see as the dots beside it: its peak at least this share of theirs (:func:`local_peak`)
+PLAIN_SHARE = 0.3
+
+
+def local_peak(cand: Candidates, fit: LatticeFit, xy: np.ndarray) -> np.ndarray:
+    """The median peak contrast [noise σ] of the eight lattice dots nearest each point ``xy`` ``(n, 2)`` [px]: what
+    a marker there is as plain to see as. The dots' peaks vary across an image whose noise does (window streaks, a
+    bright region: on greenough:19's two-level plate the dots beside the markers peak at 26-32 σ, the median dot at
+    117 σ, and the markers, at 23-25 σ, were taken for noise)."""
+    on = np.flatnonzero(fit.on)
+    _, j = cKDTree(cand.xy[on]).query(xy, k=min(8, len(on)))
+    return np.median(cand.peak[on][np.atleast_2d(j.T).T], axis=1)
+
+
+def distinct_markers(markers: list, radius_px: float) -> list:
+    """``markers`` less those within ``radius_px`` of one before them (the same marker read twice: off the
+    lattice and split off a dot), a named shape kept before a blob."""
+    out: list = []
+    for m in sorted(markers, key=lambda m: m.kind == "blob"):
+        if all(np.hypot(*np.subtract(m.centre, o.centre)) > radius_px for o in out):
+            out.append(m)
+    return out
+
+
 def off_lattice_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, reason: np.ndarray,
                         ratio: np.ndarray) -> list:
     """The markers among the candidates off the lattice (their ``reason`` set to the marker's kind): solid
@@ -190,7 +219,7 @@ def off_lattice_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: L
     markers = []
     dd, _ = cKDTree(cand.xy[fit.on]).query(cand.xy)
     apart = dd > 1.5 * np.sqrt(np.median(cand.area[fit.on]) / np.pi)    # not a piece of a dot
-    bright = cand.peak >= 0.3 * np.median(cand.peak[fit.on])
+    bright = cand.peak >= PLAIN_SHARE * local_peak(cand, fit, cand.xy)
     off = np.array([str(r).startswith("off the lattice (") for r in reason])
     shapes = (ratio > 0.3) & (ratio < 4) & (cand.area >= 100) & apart & bright & off
     outline = cand.area < 0.4 * cand.size[:, 0] * cand.size[:, 1]          # a ring or frame: mostly hole
@@ -207,20 +236,26 @@ def off_lattice_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: L
     return markers + _hole_blobs(cand, fit, reason, ratio, bright & off & ~cand.border)
 
 
-def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit) -> list:
-    """The markers joined to a dot of the lattice on the reduced image (:data:`MERGED_AREA`), read at full
-    resolution (:func:`split_marker`) at the blob's reference level, the dots', and half and three quarters of
-    the dots' peak (blur narrows the gap between them: the higher levels see it), a named shape before a blob
+def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, *, lower: bool = False) -> list:
+    """The markers joined to a dot of the lattice on the reduced image (:data:`MERGED_AREA`, at the blob's
+    reference level, or with ``lower`` only at the lowest it was seen at, where a marker dimmer than the dots is
+    still joined to it: on stereo-dic:20 1.21 and 1.40 times the dots' median; then on a patch around it there),
+    read at full resolution (:func:`split_marker`) at the
+    blob's reference level, the dots', and half and three quarters of the peak of the dots beside it
+    (:func:`local_peak`; blur narrows the gap between them: the higher levels see it), a named shape before a blob
     in a hole (:func:`in_hole`): each a ``(candidate, marker, outline)``."""
     median = float(np.median(cand.area[fit.on]))
-    peak = float(np.median(cand.peak[fit.on]))
-    levels = sorted({float(np.median(cand.level[fit.on])), 0.5 * peak, 0.75 * peak})
-    bright = cand.peak >= 0.3 * peak
+    peak = local_peak(cand, fit, cand.xy)
+    level = float(np.median(cand.level[fit.on]))
     found = []
-    for k in np.flatnonzero(fit.on & (cand.area > MERGED_AREA * median) & bright):
+    wide = cand.area > MERGED_AREA * median
+    if lower:   # joined lower down only
+        wide = ~wide & (cand.low_area > MERGED_AREA * np.median(cand.low_area[fit.on]))
+    for k in np.flatnonzero(fit.on & wide & (cand.peak >= PLAIN_SHARE * peak)):
         node = fit.node[k][None]
-        at = (fit.model.predict(node)[0], float(fit.tolerance(node)[0]), median)
-        reads = [split_marker(img, con, cand, k, level, *at) for level in [cand.level[k], *levels]]
+        at = (fit.model.predict(node)[0], float(fit.tolerance(node)[0]), median, lower)
+        levels = [cand.level[k], *sorted({level, 0.5 * peak[k], 0.75 * peak[k]})]
+        reads = [split_marker(img, con, cand, k, lv, *at) for lv in levels]
         reads = [r for r in reads
                  if r is not None and (r[0].kind != "blob" or in_hole(fit, np.array([r[0].centre]))[0])]
         if reads:   # a shape named at any level before a blob
@@ -260,10 +295,10 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
                  read: list) -> list:
     """On a two-level plate where fewer than two markers were ``read``: ``'blob'`` markers at the holes (the centres
     of the lattice's cells whose four dots were found, on either level's plane) whose contrast at their centre
-    stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least
-    half the dots' median peak and :data:`slmlab.images.dots.SEARCH_SIGMA`, a quarter step from every dot and
-    marker read (``dots``: the lattice's nodes and positions [px]; ``shape``: the image's): a marker that blur
-    joins to the dot beside it at every level of the sweep."""
+    stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least half
+    the peak of the dots beside it (:func:`local_peak`) and :data:`slmlab.images.dots.SEARCH_SIGMA`, a quarter
+    step from every dot and marker read (``dots``: the lattice's nodes and positions [px]; ``shape``: the
+    image's): a marker that blur joins to the dot beside it at every level of the sweep."""
     nodes, xy = dots
     corners = fit.nodes(grow=1)
     have = {tuple(n) for n in nodes}
@@ -279,6 +314,5 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
     r = np.clip(np.rint(con.to_reduced(holes)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     z = con.z[r[:, 1], r[:, 0]]
     around = np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # its neighbour holes, empty
-    peak = float(np.median(cand.peak[fit.on]))
-    filled = keep & (z - around >= max(0.5 * peak, SEARCH_SIGMA))
+    filled = keep & (z - around >= np.maximum(0.5 * local_peak(cand, fit, holes), SEARCH_SIGMA))
     return [Marker("blob", (float(x), float(y))) for x, y in holes[filled]]
