@@ -85,8 +85,7 @@ HOT_SHARE = 0.75
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
 STREAK_BANDS = 8
-#: ... a column's offset is read from these quantiles of its pixels in the band: the 1st for bright dots, the 3rd
-#: for dark ones (the side the dots do not reach)
+#: ... a column's offset is read from these quantiles of its pixels in the band (:func:`column_offsets`)
 STREAK_QUARTILES = (0.25, 0.75)
 #: the mesh statistics are taken again less the columns' offsets where more than this share of them is beyond
 #: the noise (the rendered zoo's window streaks: 0.21-0.31 of the columns; clean plates up to 0.11, from a
@@ -307,15 +306,18 @@ def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> tuple[np.
     """Window streaks: each column's offset ``(h, w)`` [grey levels] of ``residual`` (an image less its mesh
     background), per band of rows (:data:`STREAK_BANDS` bands down the image, at least 16 rows each), linear
     between the bands' middles; ``(for bright dots, for dark dots, agreed)``. A streak moves all of a column's
-    pixels, a dot only those on its own side: for dots of a known polarity a column's offset is that of the
-    quartile on the dots' free side (:data:`STREAK_QUARTILES`: the 1st for bright dots, the 3rd for dark ones),
-    less its median over the band's columns, so that dots covering up to a quarter of a column over a band do not
-    pass for a streak, nor up to three quarters hide one; the quartile nearer zero of the two, where they agree in
-    sign (``agreed``), missed a bright streak down a column of dark dots (by 16 of its 20 grey levels on
-    ``greenough:7201``), whose dots it then hid. Where the polarity is not known, ``agreed``: read on one side, a
-    column of dots passes for a streak of the other polarity, which builds a lattice between the dots. A median
-    cell of the mesh, 1/16 of the image, spread a streak narrower than itself over its neighbours and lost the
-    dots beside it to the spread it added."""
+    pixels, a dot only those on its own side. A column's offset is that of its 1st and 3rd quartiles
+    (:data:`STREAK_QUARTILES`, each less its median over the band's columns) that is nearer zero where they agree in
+    sign (``agreed``), so that neither dark nor bright dots, up to three quarters of a column over a band, pass for
+    a streak (a column through dot centres on a clean plate moves by a fraction of the noise). For dots of a known
+    polarity, where the two disagree, it is that of the quartile on the dots' free side (the 3rd for dark dots, the
+    1st for bright ones) if that moved more than the other: a bright streak down a column of dark dots moves the
+    3rd quartile, and the dots pull the 1st below (on ``greenough:7201`` by 16 of the streak's 20 grey levels; read
+    as agreed, the streak was lost and its dots with it). Where the dots moved more (PIV Challenge case E's large
+    bright dots, over half of a column), a streak of the other sign would be the dots' own shadow. Where the
+    polarity is not known, ``agreed``: read on one side, a column of dots passes for a streak of the other polarity,
+    which builds a lattice between the dots. A median cell of the mesh, 1/16 of the image, spread a streak
+    narrower than itself over its neighbours and lost the dots beside it to the spread it added."""
     h, w = residual.shape
     n = max(1, min(bands, h // 16))
     edges = np.linspace(0, h, n + 1).astype(int)
@@ -323,10 +325,12 @@ def column_offsets(residual: np.ndarray, bands: int = STREAK_BANDS) -> tuple[np.
     for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         cols = np.ascontiguousarray(residual[a:b:2].T)   # every other row: half the time, as good
         k = [int(q * (cols.shape[1] - 1)) for q in STREAK_QUARTILES]
-        quartiles = np.sort(cols, axis=1)[:, k].T
-        prof[:2, i] = quartiles - np.median(quartiles, axis=1, keepdims=True)
-        lo, hi = prof[:2, i]
-        prof[2, i] = np.where(lo * hi > 0, np.where(np.abs(lo) < np.abs(hi), lo, hi), 0.0)
+        lo, hi = np.sort(cols, axis=1)[:, k].T
+        lo, hi = lo - np.median(lo), hi - np.median(hi)
+        agree = lo * hi > 0
+        prof[2, i] = np.where(agree, np.where(np.abs(lo) < np.abs(hi), lo, hi), 0.0)
+        prof[0, i] = np.where(agree | (np.abs(lo) <= np.abs(hi)), prof[2, i], lo)   # bright dots: free side low
+        prof[1, i] = np.where(agree | (np.abs(hi) <= np.abs(lo)), prof[2, i], hi)   # dark dots: free side high
     return tuple(cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in prof)
 
 
