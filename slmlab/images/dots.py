@@ -11,9 +11,9 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
    side of their histogram (median minus 16th percentile for bright dots); both meshes are median-filtered
    over 3 × 3 cells and interpolated. Window streaks, narrower than a cell, are the background's columns
    (:func:`column_offsets`): where the offsets both quartiles of a column agree on stand out of the noise, the
-   offsets read on the dots' free side are taken out, the mesh again less them, and they join the background. ``z = ±(I − background) / spread`` is the
-   contrast in noise units, dots positive, whatever the illumination, offset, bit depth, streaks or a bright
-   region beside the plate.
+   offsets read on the dots' free side are taken out, the mesh again less them, and they join the background.
+   ``z = ±(I − background) / spread`` is the contrast in noise units, dots positive, whatever the illumination,
+   offset, bit depth, streaks or a bright region beside the plate.
 2. **Threshold sweep** (:func:`sweep`), OpenCV's SimpleBlobDetector idea on ``z`` instead of the raw image
    (whose one level per image a bright region or a gradient defeats): :data:`LEVELS` levels from
    :data:`LOWEST_SIGMA` σ to the 99.95th percentile of ``z`` (geometric, and one at :data:`SECOND_LEVEL` × the
@@ -34,7 +34,7 @@ gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camer
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -262,6 +262,7 @@ class ContrastMesh:
     background: np.ndarray
     spreads: tuple
     streaks: tuple
+    _again: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, img: np.ndarray) -> "ContrastMesh":
@@ -281,9 +282,11 @@ class ContrastMesh:
         background, the mesh taken again less them."""
         b, sd = self.background, self.spreads[int(dark)]
         if self.streaky(dark):
-            s = self.streaks[int(dark) if sided else 2]
-            again = _mesh_statistics(self.small - s, self.cell)
-            b, sd = again[0] + s, again[1 + int(dark)]
+            k = int(dark) if sided and not np.array_equal(self.streaks[int(dark)], self.streaks[2]) else 2
+            if k not in self._again:   # both polarities share the mesh less the agreed offsets
+                self._again[k] = _mesh_statistics(self.small - self.streaks[k], self.cell)
+            again = self._again[k]
+            b, sd = again[0] + self.streaks[k], again[1 + int(dark)]
         z = (self.small - b) / sd
         return Contrast(-z if dark else z, self.scale, b, sd, -self.small if dark else self.small, dark)
 
