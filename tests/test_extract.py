@@ -282,7 +282,10 @@ def test_fit_follows_a_saturating_bright_region_beside_the_dots():
 def test_window_streaks_are_flat_fielded_column_by_column():
     """Narrow vertical bands of 30 % more light beside every other column of dots: the columns around each
     dot flat-fielded one by one (found streaky, so ``refine`` does it) bring edges from 0.5 px RMS to below
-    0.05 px, and the model fit below 0.02 px."""
+    0.05 px, and the model fit below 0.03 px. The bands overlap to 1.9 times the light and saturate the plate
+    between the dots, so those columns' gain cannot be measured and the fit counts them for nothing (0.026 px);
+    divided by a gain measured on their clipped pixels they gave 0.017 px, and a dot half under a wider band 2 px
+    (the test below)."""
     from slmlab.images.centres import dot_reach, refine, refine_edges, refine_fit, streaky
     xy, cov, rng = _synthetic_plate()
     x = np.arange(cov.shape[1], dtype=np.float32)
@@ -294,7 +297,30 @@ def test_window_streaks_are_flat_fielded_column_by_column():
     assert _rms(refine_edges(img, start, radii, reach=reach, columns=False), xy) > 0.2
     assert _rms(refine_fit(img, start, radii, reach=reach, columns=False), xy) > 0.2
     assert _rms(refine(img, start, radii, dark=True, method="edges"), xy) < 0.05
-    assert _rms(refine(img, start, radii, dark=True, method="fit"), xy) < 0.02
+    assert _rms(refine(img, start, radii, dark=True, method="fit"), xy) < 0.03
+
+
+@pytest.mark.parametrize("edge_px, width_px", [(4, 14), (-16, 12)])
+def test_a_saturating_streak_over_half_a_column_of_dots_leaves_the_fit_on_their_centres(edge_px, width_px):
+    """A band of 60 % more light saturating over the right part of the middle column's dots (``edge_px`` from their
+    centres: a crescent left in view) or over their left edge, among faint streaks: moments and edges take the
+    visible part's centre, 1.9-2.1 px off, and so did the fit before its clipped columns counted for nothing and
+    its outline was held to its neighbours' (1.8-2.0 px). Now it is within 0.06 px there, the other dots unmoved."""
+    from slmlab.images.centres import refine
+    xy, cov, rng = _synthetic_plate()
+    x = np.arange(cov.shape[1], dtype=np.float32)
+    col_x = np.sort(xy[:, 0])[10:15].mean()                               # the middle column
+    column = np.abs(xy[:, 0] - col_x) < 3
+    faint = 1 + sum(0.1 * np.exp(-0.5 * ((x - x0) / 3) ** 2) for x0 in np.unique(np.round(xy[:, 0], -1))[::2] + 9)
+    a, b = col_x + edge_px, col_x + edge_px + width_px
+    band = 0.6 / (1 + np.exp(-(x - a) / 1.5)) / (1 + np.exp((x - b) / 1.5))
+    img = np.clip(np.rint(200 * (1 - 0.15 * cov) * (faint + band)[None, :] + rng.normal(0, 1.0, cov.shape)),
+                  0, 255).astype(np.uint8)
+    radii, start = np.full(len(xy), 12.0), xy + 0.7
+    fit = refine(img, start, radii, dark=True, method="fit")
+    assert _rms(fit[column], xy[column]) < 0.06 and _rms(fit[~column], xy[~column]) < 0.03
+    for method in ("moments", "edges"):
+        assert _rms(refine(img, start, radii, dark=True, method=method)[column], xy[column]) > 1.0, method
 
 
 def _exposed(cov, contrast, noise, seed):

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.special import erfc
 
 from .dots import as_float, gather_patches
@@ -422,6 +423,18 @@ FIT_NONLINEAR = 6
 #: how far a fitted centre may move from its start and still be taken: this many pixels, or this share of the
 #: dot's radius if more (a fit that strays to a neighbouring dot moves by a pitch, several radii)
 FIT_MOVE_PX, FIT_MOVE_RADII = 2.0, 0.25
+#: the fit's Levenberg-Marquardt steps at most (most dots stop after 3 to 8); with the outline held
+#: (:func:`_neighbours_outline`) more, a dot that starts at a crescent's centroid needs about 20 (30 for every
+#: dot took one beside a Greenough rig's glare from 0.2 to 0.7 px off)
+FIT_ITERATIONS, FIT_HELD_ITERATIONS = 12, 30
+#: a column around a dot is clipped where at least this share of its pixels outside the dot saturate, above the dot
+#: and below it, and at most this share of the patch's columns are (:func:`_streak_gain`): a streak that saturates
+#: the plate along it. Not a glare beside the dot or all around it, whose saturated pixels the fit's background and
+#: censoring describe (with every column that saturates anywhere counted for nothing, dots beside a glare on a
+#: Greenough rig's 16-bit image went from 0.08 to 0.4 px)
+CLIPPED_SHARE = 0.5
+#: a dot half in a clipped streak has its outline held to the median of this many nearest dots seen whole
+FIT_NEIGHBOURS = 6
 FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
 
 
@@ -488,14 +501,17 @@ def _sum_of_products(a, b, c, d, out):
 
 
 def _fit_start(p: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, weight: np.ndarray, centre: np.ndarray,
-               radius: float, blur: float) -> np.ndarray:
+               radius: float, blur: float, outline: np.ndarray | None = None) -> np.ndarray:
     """Starting parameters ``(n, 15)``: the outline a circle of ``radius`` [px] at ``centre`` (offsets, [px])
-    blurred by ``blur`` [px]; the linear parameters by weighted least squares for that outline."""
+    blurred by ``blur`` [px], or ``outline`` ``(n, 4)`` (:func:`fit_dots`); the linear parameters by weighted least
+    squares for that outline."""
     n = len(p)
     theta = np.zeros((n, FIT_PARAMETERS))
     theta[:, :2] = centre
     theta[:, 2] = theta[:, 4] = 1.0 / radius
     theta[:, 5] = blur / radius
+    if outline is not None:
+        theta[:, 2:FIT_NONLINEAR] = outline
     _, jac = _dot_model(theta, x, y, h)
     lin = jac[:, FIT_NONLINEAR:]
     wl = lin * weight[:, None, :]
@@ -520,25 +536,32 @@ def _fit_cost(theta, p, x, y, h, weight, censored, jacobian=True, unit=False
 
 
 def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, start: np.ndarray, radius: float,
-             blur: float, censored: np.ndarray, iterations: int = 12) -> tuple[np.ndarray, np.ndarray]:
+             blur: float, censored: np.ndarray, iterations: int = FIT_ITERATIONS, outline: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg-Marquardt fits of :func:`_dot_model` to patches ``p`` ``(n, P)`` at offsets ``x, y`` [px] with
     pixel ``weight`` ``(P,)``, all dots at once (one 15 × 15 system per dot and iteration), from the circle of
     ``radius`` and ``blur`` [px] at ``start`` ``(n, 2)`` [px]; ``censored`` ``(n, P)`` pixels (saturated) count only
     where the model is below them. Returns
     the parameters ``(n, 15)`` and whether each fit converged to a dot (a finite, positive-definite outline
     within :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of the dot's radius of the start, whichever is more:
-    a large dot beside a steep glare has its moments' start pulled by more than 2 px)."""
+    a large dot beside a steep glare has its moments' start pulled by more than 2 px, :func:`_converged`).
+    ``weight`` may be ``(n, P)``; ``outline`` ``(n, 4)``: each dot's outline and blur (``s11, s12, s22, w``) held,
+    its centre, background and depth fitted alone."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     unit = bool((np.asarray(weight) == 1.0).all())   # once, not at every step
-    theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur)
+    theta = _fit_start(p, x, y, h, np.where(censored, 0.0, w), start, radius, blur, outline)
     lam = np.full(len(p), 1e-4)
     active = np.arange(len(p))                # the dots still moving (each iteration works on those alone)
     for _ in range(iterations):
         i = active
         r, jac, cost = _fit_cost(theta[i], p[i], x, y, h, w[i], censored[i], unit=unit)
+        if outline is not None:
+            jac[:, 2:FIT_NONLINEAR] = 0.0
         jtj = jac @ jac.transpose(0, 2, 1)                                         # batched BLAS
         diag = np.einsum("nkk->nk", jtj) + 1e-12
+        if outline is not None:
+            diag[:, 2:FIT_NONLINEAR] = 1.0
         step = np.linalg.solve(jtj + lam[i, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
                                -(jac @ r[..., None]))[..., 0]
         trial = _fit_cost(theta[i] + step, p[i], x, y, h, w[i], censored[i], jacobian=False, unit=unit)[2]
@@ -549,10 +572,20 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
         active = i[~((better & (np.abs(step[:, :2]).max(axis=1) < 1e-3)) | (lam[i] > 1e6))]
         if len(active) == 0:
             break
+    return theta, _converged(theta, start, radius, held=outline is not None)
+
+
+def _converged(theta: np.ndarray, start: np.ndarray, radius: float, held: bool = False) -> np.ndarray:
+    """Whether each fit of :func:`fit_dots` converged to a dot: a finite, positive-definite outline within
+    :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of ``radius`` [px] of its ``start``; with the outline ``held``
+    (not fitted, its neighbours'), one that holds its start (the centroid of half a dot is 0.8 of its radius off)."""
     s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
-    ok = (np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
-          & (np.hypot(*(theta[:, :2] - start).T) < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius)))
-    return theta, ok
+    det = s11 * s22 - s12 * s12
+    shape = np.isfinite(theta).all(axis=1) & (s11 > 0) & (det > 0) & (theta[:, 5] > 0)
+    move = np.hypot(*(theta[:, :2] - start).T)
+    if held:   # within the outline: its start inside the dot it found
+        return shape & (move < 1.0 / np.sqrt(np.where(shape, det, 1.0)))
+    return shape & (move < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius))
 
 
 def saturation(img: np.ndarray) -> float:
@@ -583,7 +616,7 @@ def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, d
 
 
 def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-               iterations: int = 12, reach: float | None = None, columns: bool = False) -> np.ndarray:
+               iterations: int = FIT_ITERATIONS, reach: float | None = None, columns: bool = False) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] by a least-squares fit of a model of the dot and its background to
     the pixels within the dots' reach + 2 px (:func:`fit_dots`, :func:`_dot_model`): a blurred ellipse whose
     depth varies as a plane on a quadratic background, started from the :func:`refine_moments` centre.
@@ -593,31 +626,78 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     flat under a dot (a steep out-of-focus bright region beside it, a curved one) the fitted surface follows it,
     where a ring outside the dot only extrapolates a plane; saturated pixels (:func:`saturation`) are censored (a
     dot whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
-    divided by its columns' gain (window streaks, :func:`flatten`). A fit that fails (not finite, not an ellipse,
-    more than 2 px from the start) keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`. Tens of times
-    slower than ``moments`` (a 15 × 15 system per dot and iteration, 3 to 12 iterations)."""
+    divided by its columns' gain (window streaks, :func:`_streak_gain`). A column whose gain was measured on
+    saturated pixels counts for nothing (a streak that saturates the plate hides how bright it is, and what its
+    saturated pixels bound), and a dot that loses pixels so is fitted again with its outline held to its
+    neighbours' (:func:`_neighbours_outline`): what it has left, an edge and part of its core, then places it.
+    Its moments' start is the centroid of what is left (under half a dot: 0.8 of the radius off), so that fit
+    may move as far as its outline holds its start (:func:`_converged`). A fit that fails (not finite, not an ellipse, beyond those limits)
+    keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`. Tens of times slower than ``moments`` (a 15 × 15
+    system per dot and iteration, 3 to :data:`FIT_ITERATIONS` iterations)."""
+    return _fit_centres(img, centres, radii, dark, iterations, reach, columns)[0]
+
+
+def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, iterations: int,
+                 reach: float | None, columns: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`refine_fit`'s centres ``(n, 2)`` [px], and which dots were fitted with their outline held ``(n,)``."""
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
-        return c
+        return c, np.zeros(0, bool)
     reach = dot_reach(img, c, radii, dark) if reach is None else reach
     start = refine_moments(img, c, radii, dark=dark, reach=reach, columns=columns)
     half = int(np.ceil(reach + 2))
     p, base = gather_patches(img, start, half)
     p = p.astype(np.float64)
     censored = p >= saturation(img)
-    if columns:   # the columns' gain around each dot (the plane plus the column offsets, over the plane)
-        flat = flatten(img, start, reach + 1, dark, columns=True)
-        k = flat.ox.shape[0] // 2 - half
-        col = flat.column[:, k:k + 2 * half + 1]
-        level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
-        p = p / (1.0 + col / level)[:, None, :]
+    weight = np.ones_like(p)
+    if columns:
+        p, weight = _streak_gain(img, p, start, reach, dark, censored)
     off = np.arange(-half, half + 1, dtype=np.float64)
     oy, ox = np.meshgrid(off, off, indexing="ij")
     disk = np.hypot(ox, oy) <= reach + 2
     r = float(np.median(radii))
-    theta, ok = fit_dots(p[:, disk], ox[disk], oy[disk], np.ones(int(disk.sum())), start - base, r,
-                         max(0.5 * (reach - 1.5 - r), 0.7), censored[:, disk], iterations)
-    return np.where(ok[:, None], base + theta[:, :2], start)
+    blur = max(0.5 * (reach - 1.5 - r), 0.7)
+    p, x, y, weight, censored = p[:, disk], ox[disk], oy[disk], weight[:, disk], censored[:, disk]
+    theta, ok = fit_dots(p, x, y, weight, start - base, r, blur, censored, iterations)
+    centre = np.where(ok[:, None], theta[:, :2], start - base)
+    part = ((weight == 0) & (np.hypot(x - centre[:, :1], y - centre[:, 1:]) < r + blur)).any(axis=1)
+    if not part.any() or (~part & ok).sum() < 3:
+        return np.where(ok[:, None], base + theta[:, :2], start), np.zeros(len(c), bool)
+    held = _neighbours_outline(theta, start, ~part & ok, part)   # a dot half in a clipped streak
+    theta[part], ok[part] = fit_dots(p[part], x, y, weight[part], centre[part], r, blur, censored[part],
+                                     FIT_HELD_ITERATIONS, outline=held)
+    return np.where(ok[:, None], base + theta[:, :2], start), part & ok
+
+
+def _neighbours_outline(theta: np.ndarray, at: np.ndarray, whole: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The outline and blur ``(m, 4)`` (:func:`fit_dots`) of each dot of ``part``: the median of those of the
+    :data:`FIT_NEIGHBOURS` nearest (``at`` ``(n, 2)`` [px]) of the dots fitted ``whole`` (the outline varies over
+    the field: oblique views, defocus)."""
+    idx = np.flatnonzero(whole)
+    _, near = cKDTree(at[idx]).query(at[part], k=min(FIT_NEIGHBOURS, len(idx)))
+    return np.median(theta[idx[near.reshape(int(part.sum()), -1)], 2:FIT_NONLINEAR], axis=1)
+
+
+def _streak_gain(img: np.ndarray, p: np.ndarray, start: np.ndarray, reach: float, dark: bool,
+                 censored: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Patches ``p`` ``(n, S, S)`` around ``start`` divided by their columns' gain under window streaks (the plane plus
+    the column offsets of :func:`flatten`, over the plane), and pixel weights: 0 in a column whose offset was
+    measured on saturated pixels, along a streak (:data:`CLIPPED_SHARE`: its gain, and what its saturated pixels
+    bound, unknown), else 1."""
+    half = p.shape[1] // 2
+    flat = flatten(img, start, reach + 1, dark, columns=True)
+    k = flat.ox.shape[0] // 2 - half
+    col = flat.column[:, k:k + 2 * half + 1]
+    level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
+    big, _ = gather_patches(img, start, flat.ox.shape[0] // 2)
+    outside = np.hypot(flat.ox, flat.oy) > reach + 1
+    clipped = np.ones(big.shape[::2], bool)                                                    # (n, S')
+    for side in (outside & (flat.oy < 0), outside & (flat.oy > 0)):   # saturated along it, above and below the dot
+        clipped &= ((big >= saturation(img)) & side).sum(axis=1) >= CLIPPED_SHARE * np.maximum(side.sum(axis=0), 1)
+    clipped &= clipped.mean(axis=1, keepdims=True) <= CLIPPED_SHARE   # a band through the patch, not a glare around
+    clipped = clipped[:, k:k + 2 * half + 1]                                                     # (n, S)
+    gain = 1.0 + np.where(clipped, 0.0, col) / level
+    return p / gain[:, None, :], np.broadcast_to(np.where(clipped, 0.0, 1.0)[:, None, :], p.shape).copy()
 
 
 def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, jacobian: bool = False):
@@ -727,7 +807,9 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
     """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured once
     (:func:`dot_reach`); on an image crossed by window streaks (:func:`streaky`) the columns of each dot they
     cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a
-    coarse first guess) are refined again from where they moved to, flat-fielded on a ring around their new place."""
+    coarse first guess) are refined again from where they moved to, flat-fielded on a ring around their new place
+    (not a dot ``fit`` with its outline held, half in a clipped streak: its moments there would start it from the
+    visible part's centroid again, without the neighbours that hold its outline)."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return c.reshape(0, 2).copy()
@@ -735,8 +817,11 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
           "symmetry": refine_symmetry}[method]
     reach = dot_reach(img, c, radii, dark)
     columns = streaky(img, c, radii, dark, reach)
-    xy = fn(img, c, radii, dark=dark, reach=reach, columns=columns)
-    again = np.hypot(*(xy - c).T) > 2.0
+    if method == "fit":
+        xy, held = _fit_centres(img, c, radii, dark, FIT_ITERATIONS, reach, columns)
+    else:
+        xy, held = fn(img, c, radii, dark=dark, reach=reach, columns=columns), np.zeros(len(c), bool)
+    again = (np.hypot(*(xy - c).T) > 2.0) & ~held
     if again.any():
         xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach, columns=columns)
     return xy
