@@ -25,7 +25,8 @@ from slmlab.images.imageset import extract_set
 from slmlab.io import write_set
 from slmlab.virtual.designs import simulate_design
 from slmlab.studies import realrigs
-from slmlab.studies.extraction import extraction_by_degradation, plate_in_view_set, rig_extraction_errors
+from slmlab.studies.extraction import (_degradation_row, extraction_by_degradation, plate_in_view_set,
+                                       rig_extraction_errors)
 from slmlab.virtual.floor import fisher_floor, rendered_floor
 from slmlab.virtual.render import (Degradations, render_board_set, render_plate, render_rig_set, render_set,
                                    rendered_truth, rig_degradations)
@@ -150,6 +151,13 @@ CROWDED = Degradations(bits=8, dark=False, background_dn=5.0, contrast_dn=79.0, 
 #: pitch): now fitted on what is left of them (:func:`slmlab.images.centres.refine_fit`), 0.05 px RMS in all
 STREAKS_AND_STRIP = Degradations(dark=True, background_dn=222.0, contrast_dn=25.0, read_noise_dn=1.25, streaks=0.23,
                                  text_strip_px=25)
+#: the same camera without its strip, the thorough profile's find on greenough:10: a saturating streak's edge across
+#: a column of dots, whose centres were 1-1.4 px off (four lost: 95.9 % found), now 0.039 px RMS in all
+SATURATING_STREAK = replace(STREAKS_AND_STRIP, text_strip_px=0)
+#: the found dots' RMS error [px] may exceed twice the rendered images' information floor by this much: 0.042 px at
+#: most over 96 random rigs under random cameras (each kind's seeds 11-30 with the plate at two Z positions, 11-22
+#: on a two-level plate); greenough:7201's crescents were 0.73
+ACCURACY_SLACK_PX = 0.05
 
 
 @pytest.mark.slow  # rigs and cameras drawn at random, rendered and extracted (seconds each)
@@ -159,10 +167,12 @@ STREAKS_AND_STRIP = Degradations(dark=True, background_dn=222.0, contrast_dn=25.
 @example(kind="stereo-piv", seed=11, camera=HALF_LOST)
 @example(kind="stereo-piv", seed=5216, camera=CROWDED)
 @example(kind="greenough", seed=7201, camera=STREAKS_AND_STRIP)
+@example(kind="greenough", seed=10, camera=SATURATING_STREAK)
 def test_a_camera_drawn_at_random_on_a_rig_drawn_at_random_has_every_visible_dot_found_and_numbered(
         kind, seed, camera, tmp_path_factory):
     """Every visible dot of the rig's plate (whole in view, two Z positions) found and none numbered wrongly
-    under any camera: the degradations together in any mix, not one at a time as in the zoo's table."""
+    under any camera: the degradations together in any mix, not one at a time as in the zoo's table. The found
+    dots within twice the images' information floor and :data:`ACCURACY_SLACK_PX`."""
     cal = plate_in_view_set(random_rig(kind, seed), seed)
     d = write_set(tmp_path_factory.mktemp("camera") / "set", cal)
     render_rig_set(cal, d, camera, progress=False, compress=False)
@@ -172,6 +182,8 @@ def test_a_camera_drawn_at_random_on_a_rig_drawn_at_random_has_every_visible_dot
     vis = e[e["visible"]]
     good = vis["found"] & (np.hypot(vis["err1"], vis["err2"]) < 0.3 * vis["spacing_px"])
     assert len(vis) and good.mean() >= 0.99 and (vis["found"] & ~good).sum() == 0, (good.mean(), notes)
+    row = _degradation_row(e, rendered_floor(rendered))
+    assert row["rms_px"] <= 2 * row["floor_px"] + ACCURACY_SLACK_PX, row
 
 
 def test_a_plate_cut_by_a_glare_is_numbered_alone_or_not_at_all(tmp_path):
