@@ -423,10 +423,9 @@ FIT_NONLINEAR = 6
 #: how far a fitted centre may move from its start and still be taken: this many pixels, or this share of the
 #: dot's radius if more (a fit that strays to a neighbouring dot moves by a pitch, several radii)
 FIT_MOVE_PX, FIT_MOVE_RADII = 2.0, 0.25
-#: the fit's Levenberg-Marquardt steps at most (most dots stop after 3 to 8); with the outline held
-#: (:func:`_neighbours_outline`) more, a dot that starts at a crescent's centroid needs about 20 (30 for every
-#: dot took one beside a Greenough rig's glare from 0.2 to 0.7 px off)
-FIT_ITERATIONS, FIT_HELD_ITERATIONS = 12, 30
+#: the fit's Levenberg-Marquardt steps at most (most dots stop after 3 to 8; 30 took a dot beside a Greenough rig's
+#: glare from 0.2 to 0.7 px off, where the twelfth step had not yet reached the wrong minimum)
+FIT_ITERATIONS = 12
 #: a column around a dot is clipped where at least this share of its pixels outside the dot saturate, above the dot
 #: and below it, and at most this share of the patch's columns are (:func:`_streak_gain`): a streak that saturates
 #: the plate along it. Not a glare beside the dot or all around it, whose saturated pixels the fit's background and
@@ -435,6 +434,8 @@ FIT_ITERATIONS, FIT_HELD_ITERATIONS = 12, 30
 CLIPPED_SHARE = 0.5
 #: a dot half in a clipped streak has its outline held to the median of this many nearest dots seen whole
 FIT_NEIGHBOURS = 6
+#: and is taken if at least this share of the pixels inside that outline was seen (not in a clipped column)
+FIT_SEEN = 0.25
 FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
 
 
@@ -539,14 +540,14 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
              blur: float, censored: np.ndarray, iterations: int = FIT_ITERATIONS, outline: np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg-Marquardt fits of :func:`_dot_model` to patches ``p`` ``(n, P)`` at offsets ``x, y`` [px] with
-    pixel ``weight`` ``(P,)``, all dots at once (one 15 × 15 system per dot and iteration), from the circle of
+    pixel ``weight`` ``(P,)`` or ``(n, P)``, all dots at once (one 15 × 15 system per dot and iteration), from the circle of
     ``radius`` and ``blur`` [px] at ``start`` ``(n, 2)`` [px]; ``censored`` ``(n, P)`` pixels (saturated) count only
     where the model is below them. Returns
     the parameters ``(n, 15)`` and whether each fit converged to a dot (a finite, positive-definite outline
     within :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of the dot's radius of the start, whichever is more:
-    a large dot beside a steep glare has its moments' start pulled by more than 2 px, :func:`_converged`).
-    ``weight`` may be ``(n, P)``; ``outline`` ``(n, 4)``: each dot's outline and blur (``s11, s12, s22, w``) held,
-    its centre, background and depth fitted alone."""
+    a large dot beside a steep glare has its moments' start pulled by more than 2 px; :func:`_converged`).
+    ``outline`` ``(n, 4)``: each dot's outline and blur (``s11, s12, s22, w``) held, its centre, background and depth
+    fitted alone, and taken where its outline holds its start."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     unit = bool((np.asarray(weight) == 1.0).all())   # once, not at every step
@@ -578,14 +579,14 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
 def _converged(theta: np.ndarray, start: np.ndarray, radius: float, held: bool = False) -> np.ndarray:
     """Whether each fit of :func:`fit_dots` converged to a dot: a finite, positive-definite outline within
     :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of ``radius`` [px] of its ``start``; with the outline ``held``
-    (not fitted, its neighbours'), one that holds its start (the centroid of half a dot is 0.8 of its radius off)."""
+    (not fitted, its neighbours'), one whose outline holds its start (a crescent's centroid is far off: 0.8 of the
+    radius on greenough:7201, less than half of each dot in view)."""
     s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
-    det = s11 * s22 - s12 * s12
-    shape = np.isfinite(theta).all(axis=1) & (s11 > 0) & (det > 0) & (theta[:, 5] > 0)
-    move = np.hypot(*(theta[:, :2] - start).T)
-    if held:   # within the outline: its start inside the dot it found
-        return shape & (move < 1.0 / np.sqrt(np.where(shape, det, 1.0)))
-    return shape & (move < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius))
+    shape = np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
+    ux, uy = (start - theta[:, :2]).T
+    if held:   # |S (start − c)| < 1: the start inside the dot it found
+        return shape & (np.hypot(s11 * ux + s12 * uy, s12 * ux + s22 * uy) < 1.0)
+    return shape & (np.hypot(ux, uy) < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius))
 
 
 def saturation(img: np.ndarray) -> float:
@@ -629,9 +630,10 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     divided by its columns' gain (window streaks, :func:`_streak_gain`). A column whose gain was measured on
     saturated pixels counts for nothing (a streak that saturates the plate hides how bright it is, and what its
     saturated pixels bound), and a dot that loses pixels so is fitted again with its outline held to its
-    neighbours' (:func:`_neighbours_outline`): what it has left, an edge and part of its core, then places it.
-    Its moments' start is the centroid of what is left (under half a dot: 0.8 of the radius off), so that fit
-    may move as far as its outline holds its start (:func:`_converged`). A fit that fails (not finite, not an ellipse, beyond those limits)
+    neighbours' (:func:`_neighbours_outline`), from the first fit's centre (or its moments' start, the centroid of
+    what is left): what it has left, an edge and part of its core, then places it, and it is taken where its outline
+    holds its start (:func:`_converged`) and at least :data:`FIT_SEEN` of the pixels inside it were seen; else the
+    first fit stands. A fit that fails (not finite, not an ellipse, beyond those limits)
     keeps the moments' centre. ``reach`` [px]: :func:`dot_reach`. Tens of times slower than ``moments`` (a 15 × 15
     system per dot and iteration, 3 to :data:`FIT_ITERATIONS` iterations)."""
     return _fit_centres(img, centres, radii, dark, iterations, reach, columns)[0]
@@ -648,10 +650,11 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
     half = int(np.ceil(reach + 2))
     p, base = gather_patches(img, start, half)
     p = p.astype(np.float64)
-    censored = p >= saturation(img)
+    sat = saturation(img)
+    censored = p >= sat
     weight = np.ones_like(p)
     if columns:
-        p, weight = _streak_gain(img, p, start, reach, dark, censored)
+        p, weight = _streak_gain(img, p, start, reach, dark, sat)
     off = np.arange(-half, half + 1, dtype=np.float64)
     oy, ox = np.meshgrid(off, off, indexing="ij")
     disk = np.hypot(ox, oy) <= reach + 2
@@ -661,12 +664,23 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
     theta, ok = fit_dots(p, x, y, weight, start - base, r, blur, censored, iterations)
     centre = np.where(ok[:, None], theta[:, :2], start - base)
     part = ((weight == 0) & (np.hypot(x - centre[:, :1], y - centre[:, 1:]) < r + blur)).any(axis=1)
-    if not part.any() or (~part & ok).sum() < 3:
-        return np.where(ok[:, None], base + theta[:, :2], start), np.zeros(len(c), bool)
-    held = _neighbours_outline(theta, start, ~part & ok, part)   # a dot half in a clipped streak
-    theta[part], ok[part] = fit_dots(p[part], x, y, weight[part], centre[part], r, blur, censored[part],
-                                     FIT_HELD_ITERATIONS, outline=held)
-    return np.where(ok[:, None], base + theta[:, :2], start), part & ok
+    held = np.zeros(len(c), bool)
+    if part.any() and (~part & ok).sum() >= 3:   # a dot half in a clipped streak: fitted again, its outline held
+        th, fine = fit_dots(p[part], x, y, weight[part], centre[part], r, blur, censored[part], iterations,
+                            outline=_neighbours_outline(theta, start, ~part & ok, part))
+        fine &= _seen(th, x, y, weight[part]) >= FIT_SEEN
+        theta[part] = np.where(fine[:, None], th, theta[part])   # where it fails, the first fit stands
+        ok[part] |= fine
+        held[part] = fine
+    return np.where(ok[:, None], base + theta[:, :2], start), held
+
+
+def _seen(theta: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The share ``(n,)`` of the pixels inside each fitted outline (:func:`fit_dots`) that carry weight."""
+    ux, uy = x[None] - theta[:, :1], y[None] - theta[:, 1:2]
+    s11, s12, s22 = theta[:, 2:3], theta[:, 3:4], theta[:, 4:5]
+    inside = np.hypot(s11 * ux + s12 * uy, s12 * ux + s22 * uy) < 1.0
+    return (inside & (weight > 0)).sum(axis=1) / np.maximum(inside.sum(axis=1), 1)
 
 
 def _neighbours_outline(theta: np.ndarray, at: np.ndarray, whole: np.ndarray, part: np.ndarray) -> np.ndarray:
@@ -679,21 +693,22 @@ def _neighbours_outline(theta: np.ndarray, at: np.ndarray, whole: np.ndarray, pa
 
 
 def _streak_gain(img: np.ndarray, p: np.ndarray, start: np.ndarray, reach: float, dark: bool,
-                 censored: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                 sat: float) -> tuple[np.ndarray, np.ndarray]:
     """Patches ``p`` ``(n, S, S)`` around ``start`` divided by their columns' gain under window streaks (the plane plus
     the column offsets of :func:`flatten`, over the plane), and pixel weights: 0 in a column whose offset was
     measured on saturated pixels, along a streak (:data:`CLIPPED_SHARE`: its gain, and what its saturated pixels
-    bound, unknown), else 1."""
+    bound, unknown), else 1; ``sat``: :func:`saturation`."""
     half = p.shape[1] // 2
     flat = flatten(img, start, reach + 1, dark, columns=True)
     k = flat.ox.shape[0] // 2 - half
     col = flat.column[:, k:k + 2 * half + 1]
     level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
     big, _ = gather_patches(img, start, flat.ox.shape[0] // 2)
+    full = big >= sat
     outside = np.hypot(flat.ox, flat.oy) > reach + 1
     clipped = np.ones(big.shape[::2], bool)                                                    # (n, S')
     for side in (outside & (flat.oy < 0), outside & (flat.oy > 0)):   # saturated along it, above and below the dot
-        clipped &= ((big >= saturation(img)) & side).sum(axis=1) >= CLIPPED_SHARE * np.maximum(side.sum(axis=0), 1)
+        clipped &= (full & side).sum(axis=1) >= CLIPPED_SHARE * np.maximum(side.sum(axis=0), 1)
     clipped &= clipped.mean(axis=1, keepdims=True) <= CLIPPED_SHARE   # a band through the patch, not a glare around
     clipped = clipped[:, k:k + 2 * half + 1]                                                     # (n, S)
     gain = 1.0 + np.where(clipped, 0.0, col) / level
