@@ -434,8 +434,10 @@ FIT_ITERATIONS = 12
 CLIPPED_SHARE = 0.5
 #: a dot half in a clipped streak has its outline held to the median of this many nearest dots seen whole
 FIT_NEIGHBOURS = 6
-#: and is taken if at least this share of the pixels inside that outline was seen (not in a clipped column)
-FIT_SEEN = 0.25
+#: and is taken if at least this share of the pixels inside that outline was seen (not in a clipped column): not a
+#: dot wholly in a band, fitted on nothing (a dot 0.19 seen was placed so that the fit kept every dot of the
+#: stereo-DIC rig's "all together" images; at 0.25 it lost it, and the edge fit taken there was 0.059 px, not 0.043)
+FIT_SEEN = 0.1
 FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
 
 
