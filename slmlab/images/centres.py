@@ -585,10 +585,17 @@ def _converged(theta: np.ndarray, start: np.ndarray, radius: float, held: bool =
     radius on greenough:7201, less than half of each dot in view)."""
     s11, s12, s22 = theta[:, 2], theta[:, 3], theta[:, 4]
     shape = np.isfinite(theta).all(axis=1) & (s11 > 0) & (s11 * s22 - s12 * s12 > 0) & (theta[:, 5] > 0)
-    ux, uy = (start - theta[:, :2]).T
-    if held:   # |S (start − c)| < 1: the start inside the dot it found
-        return shape & (np.hypot(s11 * ux + s12 * uy, s12 * ux + s22 * uy) < 1.0)
-    return shape & (np.hypot(ux, uy) < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius))
+    if held:   # the start inside the dot it found
+        return shape & (_outline_distance(theta, start[:, :1], start[:, 1:])[:, 0] < 1.0)
+    return shape & (np.hypot(*(start - theta[:, :2]).T) < max(FIT_MOVE_PX, FIT_MOVE_RADII * radius))
+
+
+def _outline_distance(theta: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``|S (x − c)|`` ``(n, P)`` of points ``x, y`` [px] (``(P,)``, or ``(n, P)`` one set per dot) for the outlines of
+    :func:`fit_dots`' parameters ``theta`` ``(n, 15)``: 1 on the outline, below 1 inside it."""
+    ux, uy = x - theta[:, :1], y - theta[:, 1:2]
+    s11, s12, s22 = theta[:, 2:3], theta[:, 3:4], theta[:, 4:5]
+    return np.hypot(s11 * ux + s12 * uy, s12 * ux + s22 * uy)
 
 
 def saturation(img: np.ndarray) -> float:
@@ -629,8 +636,8 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     flat under a dot (a steep out-of-focus bright region beside it, a curved one) the fitted surface follows it,
     where a ring outside the dot only extrapolates a plane; saturated pixels (:func:`saturation`) are censored (a
     dot whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
-    divided by its columns' gain (window streaks, :func:`_streak_gain`). A column whose gain was measured on
-    saturated pixels counts for nothing (a streak that saturates the plate hides how bright it is, and what its
+    divided by its columns' gain (window streaks, :func:`_streak_gain`). A column saturated along a streak, its
+    gain measured on clipped pixels, counts for nothing (a streak that saturates the plate hides how bright it is, and what its
     saturated pixels bound), and a dot that loses pixels so is fitted again with its outline held to its
     neighbours' (:func:`_neighbours_outline`), from the first fit's centre (or its moments' start, the centroid of
     what is left): what it has left, an edge and part of its core, then places it, and it is taken where its outline
@@ -679,9 +686,7 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
 
 def _seen(theta: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """The share ``(n,)`` of the pixels inside each fitted outline (:func:`fit_dots`) that carry weight."""
-    ux, uy = x[None] - theta[:, :1], y[None] - theta[:, 1:2]
-    s11, s12, s22 = theta[:, 2:3], theta[:, 3:4], theta[:, 4:5]
-    inside = np.hypot(s11 * ux + s12 * uy, s12 * ux + s22 * uy) < 1.0
+    inside = _outline_distance(theta, x[None], y[None]) < 1.0
     return (inside & (weight > 0)).sum(axis=1) / np.maximum(inside.sum(axis=1), 1)
 
 
