@@ -288,6 +288,27 @@ def test_a_two_level_plate_s_small_square_is_read_where_blur_rounds_its_corners(
     assert vis["found"].mean() >= 0.99, vis["found"].mean()
 
 
+def test_extract_run_again_on_a_known_target_set_compares_by_number_or_says_it_cannot(tmp_path):
+    """``extract`` writes points.csv over the simulated one, which held the true places of a two-level plate's dots.
+    Run again on a points.csv that has every dot of truth.csv, in its order, the comparison is by number, as the first
+    time; on one that lost dots (here: five rows taken out) the places of the lost ones are gone: it says so and
+    exits 0. It used to crash on a positional index, or join the truth to the wrong rows."""
+    d = tmp_path / "set"
+    assert cli("simulate", d, "--rig", "stereo-piv", "--design", "two-level", "--images").returncode == 0
+    first = cli("extract", d)
+    assert first.returncode == 0 and "against truth.csv" in first.stdout, first.stderr[-500:]
+    line = first.stdout.splitlines()[-1]
+    extracted = pd.read_csv(d / "points.csv")
+    again = cli("extract", d)
+    assert again.returncode == 0, again.stderr[-500:]
+    assert again.stdout.splitlines()[-1] == line and "100.00 %" in line, (line, again.stdout)
+    pd.testing.assert_frame_equal(pd.read_csv(d / "points.csv"), extracted)   # the same dots, written again
+    extracted.iloc[:-5].to_csv(d / "points.csv", index=False)
+    lost = cli("extract", d)
+    assert lost.returncode == 0, lost.stderr[-500:]
+    assert "against truth.csv" not in lost.stdout and "not compared with truth.csv" in lost.stderr
+
+
 # ------------------------------------------------------------------------------------------ real samples
 def test_case_e_against_the_challenge_picks(dataset_folder):
     piv = dataset_folder("pivchallenge-case-e")

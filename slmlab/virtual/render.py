@@ -761,13 +761,27 @@ def _two_level_markers(plate: dict, origin_world: np.ndarray, to_rig) -> list:
     return [to_rig(origin_world + np.column_stack([v, np.zeros(len(v))])) for v in (triangle, square)]
 
 
+def _known_places(cal: CalibrationSet) -> np.ndarray:
+    """A known target's place ``x_mm, y_mm, z_mm`` of each dot of ``cal.truth``: ``points.csv``'s, row by row, where
+    it holds every dot of ``truth.csv`` in its order (the simulated one; or one ``extract`` wrote over it that numbered
+    them all so: the truth is then matched to it by number); :class:`SlmlabError` where it does not (the places of
+    the dots it lost are gone)."""
+    keys = ["sequence", "position", "row", "col"]
+    pts, truth = cal.points, cal.truth
+    if len(pts) != len(truth) or not (pts[keys].to_numpy() == truth[keys].to_numpy()).all():
+        raise SlmlabError("points.csv is not the simulated one beside truth.csv (written by extract?): the true "
+                          "places of a known target's dots are in the simulated points.csv; simulate the set again")
+    return pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+
+
 def rig_scenes(cal: CalibrationSet, rig):
     """Per stage position ``(sequence, position)``: the rig-frame dots ``(n, 3)`` [mm], the plate's axes
     ``(3, 2)``, its dot diameter [mm], its ``meta.json`` name and its markers (a two-level plate's)."""
     sim = cal.meta["simulator"]
     origin = np.asarray(sim["stage_origin_mm"])
     known = "x_mm" in cal.points.columns
-    truth, pts = cal.truth, cal.points
+    truth = cal.truth
+    local_all = _known_places(cal) if known else None
     for (seq, pos), idx in truth.groupby(["sequence", "position"], sort=False).indices.items():
         world = truth.iloc[idx][["X_mm", "Y_mm", "Z_mm"]].to_numpy(float)
         p = rig.stage_to_microscope(world, origin)
@@ -776,7 +790,7 @@ def rig_scenes(cal: CalibrationSet, rig):
         markers = []
         if known:
             axes = _target_axes(rig)
-            local = pts.iloc[idx][["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+            local = local_all[idx]
             if int(plate.get("levels", 1)) == 2:
                 markers = _two_level_markers(plate, (world - local)[0],
                                              lambda w: rig.stage_to_microscope(w, origin))
@@ -911,10 +925,11 @@ def rendered_truth(cal: CalibrationSet) -> pd.DataFrame:
     rig = rig_from_dict(cal.meta["simulator"]["microscope"])
     deg = set_camera(cal)
     frames = []
+    places = _known_places(cal) if "x_mm" in cal.points.columns else None
     for keys, idx, p, axes, diam, side, sensor in rig_views(cal, rig):
         c, vis = visible_dots(rig, p, axes, diam, side, deg, sensor)
         f = keys.assign(w1=c[:, 0], w2=c[:, 1], visible=vis, z_mm=p[:, 2])
-        if "x_mm" in cal.points.columns:
-            f["x_mm"], f["y_mm"] = cal.points["x_mm"].to_numpy()[idx], cal.points["y_mm"].to_numpy()[idx]
+        if places is not None:
+            f["x_mm"], f["y_mm"] = places[idx, 0], places[idx, 1]
         frames.append(f)
     return pd.concat(frames, ignore_index=True)
