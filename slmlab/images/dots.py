@@ -47,7 +47,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN",
            "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "ContrastMesh", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
+           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "OVERLAY_ROWS", "OVERLAY_SHARE", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
            "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
@@ -81,6 +81,10 @@ NCC_STRONG = 0.8
 #: image): pixels standing out in all seven lie on a dot 0.5-1.1 % of the time, in six 5-10 %, in five 12-15 %, in two
 #: to four 18-41 % (the dots' texture in neighbouring planes, where the dots barely move)
 HOT_SHARE = 0.75
+#: a camera's text overlay covers at least this many rows and at most this share of an image's rows, at its top or
+#: bottom (:func:`overlay_rows`)
+OVERLAY_ROWS = 8
+OVERLAY_SHARE = 0.1
 #: the largest side of the reduced image the sweep runs on [px]
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
@@ -181,6 +185,11 @@ class Contrast:
         the reduced, smoothed image, negated for dark dots (dots positive) [grey levels].
     dark
         the dots are darker than the plate.
+    picture
+        the reduced image's rows ``[a, b)`` the picture fills, beyond a camera's text overlay (:func:`overlay_rows`;
+        ``z`` is nil beyond them), or ``None``: all of them.
+    overlay
+        the full-resolution rows the overlay covers at the top and at the bottom (:func:`overlay_rows`).
     """
 
     z: np.ndarray
@@ -189,14 +198,16 @@ class Contrast:
     spread: np.ndarray
     signed: np.ndarray
     dark: bool = False
+    picture: tuple[int, int] | None = None
+    overlay: tuple[int, int] = (0, 0)
 
     def again(self, img: np.ndarray) -> "Contrast":
         """The contrast of ``img``, an image like the one this was taken of (the same with hot pixels
         replaced), on this one's mesh: the mesh's medians and spreads do not see a few pixels."""
         small, r = _reduced(img)
-        z = (small - self.background) / self.spread
+        z = _outside_nil((small - self.background) / self.spread, self.picture)
         return Contrast(-z if self.dark else z, r, self.background, self.spread, -small if self.dark else small,
-                        self.dark)
+                        self.dark, self.picture, self.overlay)
 
     def to_full(self, xy: np.ndarray) -> np.ndarray:
         """Reduced-image coordinates ``(n, 2)`` → full-resolution ones [px] (pixel centres at integers)."""
@@ -210,6 +221,92 @@ class Contrast:
 def reduction(shape: tuple[int, int]) -> int:
     """Reduction factor of the sweep image: the image's larger side over :data:`SWEEP_SIDE_PX`, rounded up."""
     return max(1, int(np.ceil(max(shape) / SWEEP_SIDE_PX)))
+
+
+def overlay_rows(img: np.ndarray) -> tuple[int, int]:
+    """How many rows at the top and at the bottom of ``img`` a camera's text overlay covers (0 where none): a band
+    of :data:`OVERLAY_ROWS` rows or more reaching the edge, at most :data:`OVERLAY_SHARE` of them, whose rows'
+    medians are one value within 0.5 % of the image's range (its 1st to 99th percentile: an overlay's fill, drawn on
+    the picture: no noise, no fall-off of the light; its text covers less than half a row), the band's median in
+    each eighth of its width too (a synthetic plate tilted over a flat background fills less than half of its first
+    rows: DICe's dot_06_0), beyond a step to the picture's rows next to it of twice their pixels' noise (dots over
+    less than half a row move its median by less than 1.4 σ: a flat plate's rows have one median too, down to its
+    first row of dots, 190 DN then 189 on stereo-dic:39 at its lowest contrast, under 1.5 DN of noise) and ten times
+    their medians' own. The mesh beside a dark strip under a bright plate took its median and spread from both (on
+    greenough:31 the plate's last two rows of dots, 30 of 1640, were at 0.0 σ and lost); its glyphs were read as
+    markers (stereo-piv:32: a black strip under a plate at 12 DN)."""
+    h = img.shape[0]
+    n = max(OVERLAY_ROWS + 16, int(OVERLAY_SHARE * h))
+    sub = img[:, ::4]
+    lo, hi = np.percentile(sub[::4], [1, 99])
+    span = max(float(hi) - float(lo), 1e-6)
+    same = 0.005 * span
+    cut = []
+    for rows in (sub[:n], sub[::-1][:n]):
+        m = np.median(rows, axis=1).astype(np.float64)
+        off = np.abs(m - m[0]) > same
+        k = int(np.argmax(off)) if off.any() else n
+        picture = m[k:k + 16]
+        if k < OVERLAY_ROWS or len(picture) < 16:
+            cut.append(0)
+            continue
+        step = np.abs(picture[:3] - m[0]).min()
+        across = [np.median(c) for c in np.array_split(rows[:k], 8, axis=1)]   # the fill all along
+        band = np.abs(np.asarray(across, np.float64) - m[0]).max() <= same
+        least = max(2 * _row_noise(rows[k:k + 16]), 10 * _row_noise(picture[:, None]), 2 * same)
+        cut.append(k if band and step >= least else 0)
+    return cut[0], cut[1]
+
+
+def _row_noise(rows: np.ndarray) -> float:
+    """The noise σ of ``rows`` ``(n, w)`` (a picture's pixels, or ``(n, 1)``: its rows' medians): the robust spread
+    of the differences of adjacent rows over √2, which a smooth fall-off of the light does not add to."""
+    d = np.diff(rows.astype(np.float32), axis=0).ravel()
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
+
+
+def _picture_rows(cut: tuple[int, int], scale: int, rows: int) -> tuple[int, int] | None:
+    """The reduced image's rows ``[a, b)`` clear of overlays ``cut`` (:func:`overlay_rows`, full-resolution rows)
+    at reduction ``scale``, the smoothing's reach (2 reduced rows) beyond them too; ``None`` where there are none."""
+    if not any(cut):
+        return None
+    grow = [int(np.ceil(c / scale)) + 2 if c else 0 for c in cut]
+    return grow[0], rows - grow[1]
+
+
+def _outside_nil(z: np.ndarray, picture: tuple[int, int] | None) -> np.ndarray:
+    """``z`` (in place) nil outside the ``picture`` rows (:func:`_picture_rows`)."""
+    if picture is not None:
+        z[:picture[0]], z[picture[1]:] = 0, 0
+    return z
+
+
+def _within(small: np.ndarray, picture: tuple[int, int] | None, stat, *args):
+    """``stat(small, *args)`` (arrays the shape of ``small``) taken on the ``picture`` rows only, their edge rows
+    replicated over the rest."""
+    if picture is None:
+        return stat(small, *args)
+    a, b = picture
+    return tuple(cv2.copyMakeBorder(m, a, small.shape[0] - b, 0, 0, cv2.BORDER_REPLICATE)
+                 for m in stat(np.ascontiguousarray(small[a:b]), *args))
+
+
+def overlay_painted(img: np.ndarray, con: "Contrast") -> np.ndarray:
+    """``img`` with a camera's text overlay (``con.overlay``, :func:`overlay_rows`) painted over by the plate's
+    background in the picture's row next to it (``con.background``, each column's): the centres of the dots just
+    above a dark strip under a bright plate would take its edge for theirs (on greenough:31, 0.8 px). A copy; the
+    image itself where there is no overlay."""
+    if not any(con.overlay):
+        return img
+    out = img.copy()
+    h, w = img.shape
+    a, b = con.picture
+    for rows, edge in ((slice(0, con.overlay[0]), a), (slice(h - con.overlay[1], h), b - 1)):
+        line = cv2.resize(con.background[edge:edge + 1], (w, 1), interpolation=cv2.INTER_LINEAR)
+        if np.issubdtype(img.dtype, np.integer):
+            line = np.clip(np.rint(line), np.iinfo(img.dtype).min, np.iinfo(img.dtype).max)
+        out[rows] = line.astype(img.dtype)
+    return out
 
 
 def _mesh_statistics(small: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -262,14 +359,18 @@ class ContrastMesh:
     background: np.ndarray
     spreads: tuple
     streaks: tuple
+    picture: tuple[int, int] | None = None
+    overlay: tuple[int, int] = (0, 0)
     _again: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, img: np.ndarray) -> "ContrastMesh":
         small, r = _reduced(img)
         cell = max(8, int(min(img.shape) / 16 / r))
-        bg, *sds = _mesh_statistics(small, cell)
-        return cls(small, r, cell, bg, tuple(sds), column_offsets(small - bg))
+        overlay = overlay_rows(img)
+        picture = _picture_rows(overlay, r, small.shape[0])   # a camera's text strip left out
+        bg, *sds = _within(small, picture, _mesh_statistics, cell)
+        return cls(small, r, cell, bg, tuple(sds), _within(small - bg, picture, column_offsets), picture, overlay)
 
     def streaky(self, dark: bool) -> bool:
         """Whether more than :data:`STREAK_SHARE` of the columns' offsets that both quartiles agree on stand out
@@ -284,11 +385,12 @@ class ContrastMesh:
         if self.streaky(dark):
             k = int(dark) if sided and not np.array_equal(self.streaks[int(dark)], self.streaks[2]) else 2
             if k not in self._again:   # both polarities share the mesh less the agreed offsets
-                self._again[k] = _mesh_statistics(self.small - self.streaks[k], self.cell)
+                self._again[k] = _within(self.small - self.streaks[k], self.picture, _mesh_statistics, self.cell)
             again = self._again[k]
             b, sd = again[0] + self.streaks[k], again[1 + int(dark)]
-        z = (self.small - b) / sd
-        return Contrast(-z if dark else z, self.scale, b, sd, -self.small if dark else self.small, dark)
+        z = _outside_nil((self.small - b) / sd, self.picture)
+        return Contrast(-z if dark else z, self.scale, b, sd, -self.small if dark else self.small, dark, self.picture,
+                        self.overlay)
 
 
 def local_contrasts(img: np.ndarray, polarities=(False, True)) -> list[Contrast]:

@@ -33,7 +33,8 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
-from .dots import Candidates, Contrast, ContrastMesh, clean_hot_pixels, read_image, search_missing, sweep
+from .dots import (Candidates, Contrast, ContrastMesh, clean_hot_pixels, overlay_painted, read_image, search_missing,
+                   sweep)
 from .markers import (distinct_markers, filled_holes, joined_markers, marker_outline, off_lattice_markers,
                       painted_out)
 from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
@@ -190,13 +191,14 @@ def _dot_radius(loc: _Located) -> float:
 
 def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | None, two_level: bool,
             camera_hot: np.ndarray | None = None) -> _Located:
-    """Steps 1-2 of the module docstring: candidates and lattice, hot pixels (the camera's known ones
+    """Steps 1-2 of the module docstring: candidates and lattice, a camera's text overlay painted over
+    (:func:`slmlab.images.dots.overlay_painted`), hot pixels (the camera's known ones
     ``camera_hot`` too, :func:`slmlab.images.dots.camera_hot_pixels`), the local search."""
     loc = _detect_any(img, dark, two_level)
     if loc.fit is None:
         return loc
     radius = _dot_radius(loc)
-    loc.clean, loc.hot = clean_hot_pixels(img, radius, loc.cand.xy[loc.fit.on], camera_hot)
+    loc.clean, loc.hot = clean_hot_pixels(overlay_painted(img, loc.con), radius, loc.cand.xy[loc.fit.on], camera_hot)
     con = (lambda: loc.con.again(loc.clean)) if loc.hot else (lambda: loc.con)   # taken only if a node is searched
     grow, repeat = _search_box(loc.fit, rows, cols), rows is None or cols is None
     loc.searched = _recover(con, loc.cand, loc.fit, grow, img.shape, 0.5 * radius, repeat)
