@@ -23,11 +23,11 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .dots import SEARCH_SIGMA, Candidates, Contrast, gather_patches
+from .dots import Candidates, Contrast, gather_patches
 from .lattice import LatticeFit, inside_image
 
 __all__ = ["Marker", "polygon_kind", "marker_kind", "split_marker", "marker_outline", "painted_out", "MERGED_AREA",
-           "PLAIN_SHARE", "local_peak", "distinct_markers", "in_hole", "off_lattice_markers", "joined_markers",
+           "PLAIN_SHARE", "near_median", "local_peak", "HOLE_SIGMAS", "distinct_markers", "in_hole", "off_lattice_markers", "joined_markers",
            "filled_holes"]
 
 
@@ -186,14 +186,22 @@ MERGED_AREA = 1.3
 PLAIN_SHARE = 0.3
 
 
-def local_peak(cand: Candidates, fit: LatticeFit, xy: np.ndarray) -> np.ndarray:
-    """The median peak contrast [noise σ] of the eight lattice dots nearest each point ``xy`` ``(n, 2)`` [px]: what
-    a marker there is as plain to see as. The dots' peaks vary across an image whose noise does (window streaks, a
-    bright region: on greenough:19's two-level plate the dots beside the markers peak at 26-32 σ, the median dot at
-    117 σ, and the markers, at 23-25 σ, were taken for noise)."""
+def near_median(cand: Candidates, fit: LatticeFit, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The median of the candidates' ``values`` ``(n_candidates,)`` over the eight lattice dots nearest each point
+    ``xy`` ``(n, 2)`` [px] (a dot of the lattice among them): what the dots around a place are like, where they vary
+    across the image (window streaks, a bright region, vignetting change their contrast and so their area at one
+    level)."""
     on = np.flatnonzero(fit.on)
     _, j = cKDTree(cand.xy[on]).query(xy, k=min(8, len(on)))
-    return np.median(cand.peak[on][np.atleast_2d(j.T).T], axis=1)
+    return np.median(values[on][np.atleast_2d(j.T).T], axis=1)
+
+
+def local_peak(cand: Candidates, fit: LatticeFit, xy: np.ndarray) -> np.ndarray:
+    """The median peak contrast [noise σ] of the eight lattice dots nearest each point ``xy`` ``(n, 2)`` [px]
+    (:func:`near_median`): what a marker there is as plain to see as. The dots' peaks vary across an image whose
+    noise does (window streaks, a bright region: on greenough:19's two-level plate the dots beside the markers peak
+    at 26-32 σ, the median dot at 117 σ, and the markers, at 23-25 σ, were taken for noise)."""
+    return near_median(cand, fit, cand.peak, xy)
 
 
 def distinct_markers(markers: list, radius_px: float) -> list:
@@ -236,10 +244,21 @@ def off_lattice_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: L
     return markers + _hole_blobs(cand, fit, reason, ratio, bright & off & ~cand.border)
 
 
+def _beside_dots(fit: LatticeFit, xy: np.ndarray) -> bool:
+    """Whether a shape split off a dot at ``xy`` ``(1, 2)`` [px] may be a marker: not at a node of the lattice,
+    where it is the next dot (read near its top, a noisy dot's ragged outline may fill its bounding rectangle like
+    a square: on stereo-piv:34, 0.881)."""
+    nodes = fit.nodes(grow=1)
+    d, j = cKDTree(fit.model.predict(nodes)).query(xy)
+    return bool(d[0] >= fit.tolerance(nodes[j])[0])
+
+
 def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, *, lower: bool = False) -> list:
     """The markers joined to a dot of the lattice on the reduced image (:data:`MERGED_AREA`, at the blob's
     reference level, or with ``lower`` only at the lowest it was seen at, where a marker dimmer than the dots is
-    still joined to it: on stereo-dic:20 1.21 and 1.40 times the dots' median; then on a patch around it there),
+    still joined to it: on stereo-dic:20 1.21 and 1.40 times the dots' median; then on a patch around it there,
+    and against the dots around it too, :func:`near_median`: on stereo-dic:35's two-level plate under window
+    streaks a dot joined to the square was 1.19 times the dots' median at that level, 1.6 times its neighbours'),
     read at full resolution (:func:`split_marker`) at the
     blob's reference level, the dots', and half and three quarters of the peak of the dots beside it
     (:func:`local_peak`; blur narrows the gap between them: the higher levels see it), a named shape before a blob
@@ -249,15 +268,16 @@ def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: Lattic
     level = float(np.median(cand.level[fit.on]))
     found = []
     wide = cand.area > MERGED_AREA * median
-    if lower:   # joined lower down only
-        wide = ~wide & (cand.low_area > MERGED_AREA * np.median(cand.low_area[fit.on]))
+    if lower:   # joined lower down only, larger than the dots' median or than the dots' around it
+        around = np.minimum(np.median(cand.low_area[fit.on]), near_median(cand, fit, cand.low_area, cand.xy))
+        wide = ~wide & (cand.low_area > MERGED_AREA * around)
     for k in np.flatnonzero(fit.on & wide & (cand.peak >= PLAIN_SHARE * peak)):
         node = fit.node[k][None]
         at = (fit.model.predict(node)[0], float(fit.tolerance(node)[0]), median, lower)
         levels = [cand.level[k], *sorted({level, 0.5 * peak[k], 0.75 * peak[k]})]
         reads = [split_marker(img, con, cand, k, lv, *at) for lv in levels]
-        reads = [r for r in reads
-                 if r is not None and (r[0].kind != "blob" or in_hole(fit, np.array([r[0].centre]))[0])]
+        reads = [r for r in reads if r is not None and _beside_dots(fit, np.array([r[0].centre]))
+                 and (r[0].kind != "blob" or in_hole(fit, np.array([r[0].centre]))[0])]
         if reads:   # a shape named at any level before a blob
             found.append((k, *min(reads, key=lambda r: r[0].kind == "blob")))
     return found
@@ -291,14 +311,23 @@ def _hole_blobs(cand: Candidates, fit: LatticeFit, reason: np.ndarray, ratio: np
     return [Marker("blob", tuple(cand.xy[k])) for k in np.flatnonzero(blob)]
 
 
+#: a filled hole stands out of its neighbour holes by this many times their own robust spread (:func:`filled_holes`)
+HOLE_SIGMAS = 6.0
+
+
 def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, shape: tuple[int, int],
                  read: list) -> list:
     """On a two-level plate where fewer than two markers were ``read``: ``'blob'`` markers at the holes (the centres
     of the lattice's cells whose four dots were found, on either level's plane) whose contrast at their centre
-    stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least half
-    the peak of the dots beside it (:func:`local_peak`) and :data:`slmlab.images.dots.SEARCH_SIGMA`, a quarter
-    step from every dot and marker read (``dots``: the lattice's nodes and positions [px]; ``shape``: the
-    image's): a marker that blur joins to the dot beside it at every level of the sweep."""
+    stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least
+    :data:`PLAIN_SHARE` of the peak of the dots beside it (:func:`local_peak`) and by :data:`HOLE_SIGMAS` times the
+    robust spread of that difference over all the holes (what an empty hole shows: the image's noise there, window
+    streaks' edges, a glare's slope), a quarter step from every dot and marker read (``dots``: the lattice's nodes
+    and positions [px]; ``shape``: the image's): a marker that blur joins to the dot beside it at every level of the
+    sweep. Under everything together on stereo-dic:37 and :40 the square stood out by 7.1 and 9.0 times the holes'
+    spread, the emptiest holes' top by at most 5.1 (it was held to :data:`slmlab.images.dots.SEARCH_SIGMA` of the
+    reduced image's noise, which the holes' spread is 0.5-0.7 of: the square was missed and the image unnumbered);
+    on greenough:32 at 3.9, among the empty holes: lost."""
     nodes, xy = dots
     corners = fit.nodes(grow=1)
     have = {tuple(n) for n in nodes}
@@ -313,6 +342,7 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
         return []
     r = np.clip(np.rint(con.to_reduced(holes)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     z = con.z[r[:, 1], r[:, 0]]
-    around = np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # its neighbour holes, empty
-    filled = keep & (z - around >= np.maximum(0.5 * local_peak(cand, fit, holes), SEARCH_SIGMA))
+    above = z - np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # over its neighbour holes
+    spread = 1.4826 * np.median(np.abs(above - np.median(above)))
+    filled = keep & (above >= np.maximum(PLAIN_SHARE * local_peak(cand, fit, holes), HOLE_SIGMAS * spread))
     return [Marker("blob", (float(x), float(y))) for x, y in holes[filled]]
