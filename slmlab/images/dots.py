@@ -47,7 +47,8 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN",
            "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "OVERLAY_ROWS", "OVERLAY_SHARE", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
+           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "OVERLAY_ROWS",
+           "OVERLAY_SHARE", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
            "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]

@@ -27,8 +27,8 @@ from .dots import Candidates, Contrast, gather_patches
 from .lattice import LatticeFit, inside_image
 
 __all__ = ["Marker", "polygon_kind", "marker_kind", "split_marker", "marker_outline", "painted_out", "MERGED_AREA",
-           "PLAIN_SHARE", "near_median", "local_peak", "HOLE_SIGMAS", "distinct_markers", "in_hole", "off_lattice_markers", "joined_markers",
-           "filled_holes"]
+           "PLAIN_SHARE", "near_median", "local_peak", "HOLE_SIGMAS", "distinct_markers", "in_hole",
+           "off_lattice_markers", "joined_markers", "filled_holes"]
 
 
 @dataclass
