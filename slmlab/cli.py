@@ -30,7 +30,7 @@ from .paper.evaluation import evaluate
 from .studies.extraction import extraction_errors, extraction_summary
 from .virtual.designs import DESIGNS, simulate_design
 from .virtual.presets import preset
-from .virtual.render import check_renderable, render_set
+from .virtual.render import check_renderable, render_set, truth_places_held
 from .virtual.rigs import rig_by_name
 from .virtual.sessions import paper_test, validation_session
 from .virtual.simulate import simulate_set
@@ -141,11 +141,11 @@ def _extract(a) -> int:
     n_both = int(points[["wl1", "wr1"]].notna().all(axis=1).sum())
     print(f"wrote {a.cal_dir / 'points.csv'}: {len(points)} dots ({n_both} in both views)")
     if old is not None and old.truth is not None and "simulator" in old.meta:
-        try:
-            s = extraction_summary(extraction_errors(points, old))
-        except SlmlabError as exc:   # the comparison only: the points are written
-            print(f"note: not compared with truth.csv: {exc.reason}", file=sys.stderr)
+        if not truth_places_held(old):   # the comparison only: the points are written
+            print("note: not compared with truth.csv: points.csv was not the simulated one (written by extract "
+                  "before?), which held the true places of the target's dots; simulate the set again", file=sys.stderr)
             return 0
+        s = extraction_summary(extraction_errors(points, old))
         print(f"against truth.csv: {s['found_and_indexed_percent']:.2f} % of {s['visible']} visible dots found and "
               f"indexed, {s['misindexed']} misindexed; centre RMS {s['rms_in_focus_px']:.4f} px in focus, "
               f"{s['rms_depth_of_field_px']:.4f} px over the depth of field")

@@ -245,6 +245,19 @@ def test_a_camera_s_text_strip_right_under_the_plate_is_left_out(depth, noise, r
     assert len(got) == 49 and np.sqrt(np.mean(d ** 2)) <= rms_px, (len(got), np.sqrt(np.mean(d ** 2)), d.max())
 
 
+@pytest.mark.parametrize("hidden_px", [4, 12])
+def test_dots_a_text_strip_cuts_are_dropped_not_kept_off_centre(hidden_px):
+    """A strip that hides part of the plate's last row: those dots are cut by the picture's edge, as by the
+    image's, and dropped; with z nil over the strip their visible parts were blobs of their own, kept 1.3-1.6 px
+    off with 4 px hidden, 5.2-5.6 px with half (the independent review's case)."""
+    xy, cov, rng = _synthetic_plate(n=7, pitch=64, radius=12.0, size=480, seed=3)
+    strip = 480 - int(np.ceil(xy[:, 1].max() + 12 - hidden_px))      # 40 and 48 rows: found as an overlay
+    img = _with_text_strip(180 * (1 - 0.5 * cov) + rng.normal(0, 1.0, cov.shape), strip)
+    got = extract_image(img, 7, 7, method="symmetry").table[["w1", "w2"]].to_numpy()
+    d = np.hypot(*(got[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    assert len(got) == 42 and d.max() < 0.05, (len(got), d.max())
+
+
 def test_a_picture_without_an_overlay_has_none(dataset_folder):
     """No overlay is found where there is none: a plate under a strong gradient falling to black at the image's
     bottom, or vignetting; none of the real samples' images (PIV Challenge case E's bright bottom rows, DICe's
@@ -256,6 +269,11 @@ def test_a_picture_without_an_overlay_has_none(dataset_folder):
     for light in (1.2 - 1.2 * y, 1 - 0.6 * ((x - 0.5) ** 2 + (y - 0.5) ** 2) * 2):
         assert overlay_rows(np.clip(np.rint(plate * light + rng.normal(0, 1.0, cov.shape)), 0, 255).astype(np.uint8)) \
             == (0, 0)
+    # a flat plate with a clean margin of 26 rows above rows of dots covering most of a row: its rows share one
+    # median down to the dots, but the dots' blurred edges move it off gradually, not in an overlay's step (rows
+    # clipped white at an edge do step, and are left out like one: they hold no dots)
+    dense = 180 * (1 - 0.3 * _synthetic_plate(n=9, pitch=48, radius=20.0, size=480, seed=4)[1])
+    assert overlay_rows(np.clip(np.rint(dense + rng.normal(0, 1.5, cov.shape)), 0, 255).astype(np.uint8)) == (0, 0)
     assert overlay_rows(_with_text_strip(plate + rng.normal(0, 1.0, cov.shape), 24, top=True)) == (24, 0)
     names = ("pivchallenge-case-e", "dice-calb-sys2", "dice-sim-dot-target", "fluidimage-tomopiv",
              "opencv-stereo-chessboard")

@@ -47,7 +47,7 @@ __all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN",
            "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "OVERLAY_ROWS",
+           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "robust_sigma", "OVERLAY_ROWS",
            "OVERLAY_SHARE", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
            "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
@@ -233,12 +233,15 @@ def overlay_rows(img: np.ndarray) -> tuple[int, int]:
     rows: DICe's dot_06_0), beyond a step to the picture's rows next to it of twice their pixels' noise (dots over
     less than half a row move its median by less than 1.4 σ: a flat plate's rows have one median too, down to its
     first row of dots, 190 DN then 189 on stereo-dic:39 at its lowest contrast, under 1.5 DN of noise) and ten times
-    their medians' own. The mesh beside a dark strip under a bright plate took its median and spread from both (on
+    their medians' own (and twice the fill's tolerance). The mesh beside a dark strip under a bright plate took its median and spread from both (on
     greenough:31 the plate's last two rows of dots, 30 of 1640, were at 0.0 σ and lost); its glyphs were read as
     markers (stereo-piv:32: a black strip under a plate at 12 DN)."""
     h = img.shape[0]
-    n = max(OVERLAY_ROWS + 16, int(OVERLAY_SHARE * h))
+    most = int(OVERLAY_SHARE * h)
+    n = most + 16
     sub = img[:, ::4]
+    if most < OVERLAY_ROWS or sub.shape[1] < 8:
+        return 0, 0
     lo, hi = np.percentile(sub[::4], [1, 99])
     span = max(float(hi) - float(lo), 1e-6)
     same = 0.005 * span
@@ -248,7 +251,7 @@ def overlay_rows(img: np.ndarray) -> tuple[int, int]:
         off = np.abs(m - m[0]) > same
         k = int(np.argmax(off)) if off.any() else n
         picture = m[k:k + 16]
-        if k < OVERLAY_ROWS or len(picture) < 16:
+        if not OVERLAY_ROWS <= k <= most or len(picture) < 16:
             cut.append(0)
             continue
         step = np.abs(picture[:3] - m[0]).min()
@@ -259,20 +262,23 @@ def overlay_rows(img: np.ndarray) -> tuple[int, int]:
     return cut[0], cut[1]
 
 
+def robust_sigma(values: np.ndarray) -> float:
+    """The robust σ of ``values`` (any shape): 1.4826 times their median absolute deviation."""
+    return 1.4826 * _mad(np.asarray(values, np.float64).ravel(), integers=False)
+
+
 def _row_noise(rows: np.ndarray) -> float:
     """The noise σ of ``rows`` ``(n, w)`` (a picture's pixels, or ``(n, 1)``: its rows' medians): the robust spread
     of the differences of adjacent rows over √2, which a smooth fall-off of the light does not add to."""
-    d = np.diff(rows.astype(np.float32), axis=0).ravel()
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
+    return robust_sigma(np.diff(rows.astype(np.float32), axis=0)) / np.sqrt(2)
 
 
-def _picture_rows(cut: tuple[int, int], scale: int, rows: int) -> tuple[int, int] | None:
+def _picture_rows(cut: tuple[int, int], scale: int, rows: int, cell: int) -> tuple[int, int] | None:
     """The reduced image's rows ``[a, b)`` clear of overlays ``cut`` (:func:`overlay_rows`, full-resolution rows)
-    at reduction ``scale``, the smoothing's reach (2 reduced rows) beyond them too; ``None`` where there are none."""
-    if not any(cut):
-        return None
-    grow = [int(np.ceil(c / scale)) + 2 if c else 0 for c in cut]
-    return grow[0], rows - grow[1]
+    at reduction ``scale``, the smoothing's reach (4 reduced rows: its kernel's half) beyond them too; ``None``
+    where there are none, or where fewer than a mesh ``cell`` of rows would be left."""
+    grow = [int(np.ceil(c / scale)) + 4 if c else 0 for c in cut]
+    return None if not any(cut) or rows - grow[0] - grow[1] < cell else (grow[0], rows - grow[1])
 
 
 def _outside_nil(z: np.ndarray, picture: tuple[int, int] | None) -> np.ndarray:
@@ -369,7 +375,8 @@ class ContrastMesh:
         small, r = _reduced(img)
         cell = max(8, int(min(img.shape) / 16 / r))
         overlay = overlay_rows(img)
-        picture = _picture_rows(overlay, r, small.shape[0])   # a camera's text strip left out
+        picture = _picture_rows(overlay, r, small.shape[0], cell)   # a camera's text strip left out
+        overlay = overlay if picture is not None else (0, 0)
         bg, *sds = _within(small, picture, _mesh_statistics, cell)
         return cls(small, r, cell, bg, tuple(sds), _within(small - bg, picture, column_offsets), picture, overlay)
 
@@ -614,7 +621,8 @@ def _summarise(rec: np.ndarray, ts: np.ndarray, con: Contrast, split: bool = Fal
     r = rec[start + ref - first]
     area = r[:, 8]
     x, y, w, h = r[:, 4], r[:, 5], r[:, 6], r[:, 7]
-    border = (x <= 0) | (y <= 0) | (x + w >= ws) | (y + h >= hs)
+    a, b = con.picture or (0, hs)   # a camera's text strip is the picture's edge
+    border = (x <= 0) | (y <= a) | (x + w >= ws) | (y + h >= b)
     hole = r[:, 9] == 0
     return Candidates(con.to_full(r[:, 2:4]), area * s * s, np.column_stack([w, h]) * s, count, peak,
                       border, hole, ts[ref], first, ts[first], rec[start, 8] * s * s, rec[start, 6:8] * s, noise)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .dots import Candidates, Contrast, gather_patches
+from .dots import LOWEST_SIGMA, Candidates, Contrast, gather_patches, robust_sigma
 from .lattice import LatticeFit, inside_image
 
 __all__ = ["Marker", "polygon_kind", "marker_kind", "split_marker", "marker_outline", "painted_out", "MERGED_AREA",
@@ -244,13 +244,13 @@ def off_lattice_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: L
     return markers + _hole_blobs(cand, fit, reason, ratio, bright & off & ~cand.border)
 
 
-def _beside_dots(fit: LatticeFit, xy: np.ndarray) -> bool:
-    """Whether a shape split off a dot at ``xy`` ``(1, 2)`` [px] may be a marker: not at a node of the lattice,
-    where it is the next dot (read near its top, a noisy dot's ragged outline may fill its bounding rectangle like
-    a square: on stereo-piv:34, 0.881)."""
+def _beside_dots(fit: LatticeFit):
+    """``beside(xy (2,)) -> bool``: whether a shape split off a dot at ``xy`` [px] may be a marker, nearer a hole
+    (:func:`in_hole`'s, either level's plane) than a node of the lattice, where it is the next dot (read near its
+    top, a noisy dot's ragged outline may fill its bounding rectangle like a square: on stereo-piv:34, 0.881)."""
     nodes = fit.nodes(grow=1)
-    d, j = cKDTree(fit.model.predict(nodes)).query(xy)
-    return bool(d[0] >= fit.tolerance(nodes[j])[0])
+    to_node, to_hole = cKDTree(fit.model.predict(nodes)), cKDTree(_holes(fit, nodes + 0.5))
+    return lambda xy: bool(to_hole.query(xy)[0] < to_node.query(xy)[0])
 
 
 def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: LatticeFit, *, lower: bool = False) -> list:
@@ -266,7 +266,7 @@ def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: Lattic
     median = float(np.median(cand.area[fit.on]))
     peak = local_peak(cand, fit, cand.xy)
     level = float(np.median(cand.level[fit.on]))
-    found = []
+    found, beside = [], _beside_dots(fit)
     wide = cand.area > MERGED_AREA * median
     if lower:   # joined lower down only, larger than the dots' median or than the dots' around it
         around = np.minimum(np.median(cand.low_area[fit.on]), near_median(cand, fit, cand.low_area, cand.xy))
@@ -276,7 +276,7 @@ def joined_markers(img: np.ndarray, con: Contrast, cand: Candidates, fit: Lattic
         at = (fit.model.predict(node)[0], float(fit.tolerance(node)[0]), median, lower)
         levels = [cand.level[k], *sorted({level, 0.5 * peak[k], 0.75 * peak[k]})]
         reads = [split_marker(img, con, cand, k, lv, *at) for lv in levels]
-        reads = [r for r in reads if r is not None and _beside_dots(fit, np.array([r[0].centre]))
+        reads = [r for r in reads if r is not None and beside(r[0].centre)
                  and (r[0].kind != "blob" or in_hole(fit, np.array([r[0].centre]))[0])]
         if reads:   # a shape named at any level before a blob
             found.append((k, *min(reads, key=lambda r: r[0].kind == "blob")))
@@ -321,8 +321,8 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
     of the lattice's cells whose four dots were found, on either level's plane) whose contrast at their centre
     stands out of their neighbour holes' (a gradient the background mesh lags shifts them all) by at least
     :data:`PLAIN_SHARE` of the peak of the dots beside it (:func:`local_peak`) and by :data:`HOLE_SIGMAS` times the
-    robust spread of that difference over all the holes (what an empty hole shows: the image's noise there, window
-    streaks' edges, a glare's slope), a quarter step from every dot and marker read (``dots``: the lattice's nodes
+    robust spread of that difference over the holes looked at (what an empty hole shows: the image's noise there,
+    window streaks' edges, a glare's slope; and by the sweep's lowest level), a quarter step from every dot and marker read (``dots``: the lattice's nodes
     and positions [px]; ``shape``: the image's): a marker that blur joins to the dot beside it at every level of the
     sweep. Under everything together on stereo-dic:37 and :40 the square stood out by 7.1 and 9.0 times the holes'
     spread, the emptiest holes' top by at most 5.1 (it was held to :data:`slmlab.images.dots.SEARCH_SIGMA` of the
@@ -343,6 +343,6 @@ def filled_holes(con: Contrast, cand: Candidates, fit: LatticeFit, dots: tuple, 
     r = np.clip(np.rint(con.to_reduced(holes)).astype(int), 0, np.array(con.z.shape[::-1]) - 1)
     z = con.z[r[:, 1], r[:, 0]]
     above = z - np.median(z[cKDTree(holes).query(holes, k=9)[1][:, 1:]], axis=1)   # over its neighbour holes
-    spread = 1.4826 * np.median(np.abs(above - np.median(above)))
-    filled = keep & (above >= np.maximum(PLAIN_SHARE * local_peak(cand, fit, holes), HOLE_SIGMAS * spread))
+    least = max(HOLE_SIGMAS * robust_sigma(above[keep]) if keep.any() else np.inf, LOWEST_SIGMA)
+    filled = keep & (above >= np.maximum(PLAIN_SHARE * local_peak(cand, fit, holes), least))
     return [Marker("blob", (float(x), float(y))) for x, y in holes[filled]]

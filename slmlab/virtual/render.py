@@ -42,7 +42,7 @@ __all__ = ["dot_footprints", "footprints", "dot_coverage", "render_view", "rende
            "image_name", "write_png", "expose", "render_board", "board_reflectance", "render_board_set",
            "board_orientation", "Degradations", "RIG_LOOKS", "DEGRADATIONS", "rig_degradations", "expected_image",
            "noise_variance", "camera_image", "view_dots", "render_rig_view", "visible_dots", "sensor_rng", "rig_scenes",
-           "check_renderable", "render_rig_set", "set_camera", "rig_views", "rendered_truth"]
+           "truth_places_held", "check_renderable", "render_rig_set", "set_camera", "rig_views", "rendered_truth"]
 
 
 def image_name(sequence: str, position: int, side: str) -> str:
@@ -761,17 +761,26 @@ def _two_level_markers(plate: dict, origin_world: np.ndarray, to_rig) -> list:
     return [to_rig(origin_world + np.column_stack([v, np.zeros(len(v))])) for v in (triangle, square)]
 
 
-def _known_places(cal: CalibrationSet) -> np.ndarray:
-    """A known target's place ``x_mm, y_mm, z_mm`` of each dot of ``cal.truth``: ``points.csv``'s, row by row, where
-    it holds every dot of ``truth.csv`` in its order (the simulated one; or one ``extract`` wrote over it that numbered
-    them all so: the truth is then matched to it by number); :class:`SlmlabError` where it does not (the places of
-    the dots it lost are gone)."""
+def truth_places_held(cal: CalibrationSet) -> bool:
+    """Whether ``points.csv`` still holds the true places of a known target's dots (``x_mm, y_mm, z_mm``) for
+    :func:`rendered_truth`: every dot of ``truth.csv``, in its order, numbered alike (the simulated file; or one
+    ``extract`` wrote over it that numbered them all so: the truth is then matched to it by number). Always where the
+    plate is not a known target (its truth needs no places)."""
+    if "x_mm" not in cal.points.columns:
+        return True
     keys = ["sequence", "position", "row", "col"]
     pts, truth = cal.points, cal.truth
-    if len(pts) != len(truth) or not (pts[keys].to_numpy() == truth[keys].to_numpy()).all():
+    return len(pts) == len(truth) and bool((pts[keys].to_numpy() == truth[keys].to_numpy()).all())
+
+
+def _known_places(cal: CalibrationSet) -> np.ndarray:
+    """A known target's place ``x_mm, y_mm, z_mm`` of each dot of ``cal.truth``, row by row from ``points.csv``
+    where :func:`truth_places_held`; :class:`SlmlabError` where not (the places of the dots an extraction lost are
+    gone)."""
+    if not truth_places_held(cal):
         raise SlmlabError("points.csv is not the simulated one beside truth.csv (written by extract?): the true "
                           "places of a known target's dots are in the simulated points.csv; simulate the set again")
-    return pts[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    return cal.points[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
 
 
 def rig_scenes(cal: CalibrationSet, rig):
