@@ -234,9 +234,9 @@ def test_a_camera_s_text_strip_right_under_the_plate_is_left_out(depth, noise, r
     """A camera's text strip 6 px under the plate's last row of dark dots: the contrast mesh took its median and
     spread from the strip and the plate together, and the centres of that row took the strip's edge for theirs
     (1.09 px RMS over the plate, 3.3 px at worst, before; at 20 % contrast 1.38 and 4.2). The strip is found
-    (:func:`slmlab.images.dots.overlay_rows`), left out of the mesh and painted over with the plate's background
+    (:func:`slmlab.images.overlay.overlay_rows`), left out of the mesh and painted over with the plate's background
     for the centres."""
-    from slmlab.images.dots import overlay_rows
+    from slmlab.images.overlay import overlay_rows
     xy, cov, rng = _synthetic_plate(n=7, pitch=64, radius=12.0, size=480, seed=3)
     img = _with_text_strip(180 * (1 - depth * cov) + rng.normal(0, noise, cov.shape), 30)
     assert overlay_rows(img) == (0, 30)
@@ -262,7 +262,7 @@ def test_a_picture_without_an_overlay_has_none(dataset_folder):
     """No overlay is found where there is none: a plate under a strong gradient falling to black at the image's
     bottom, or vignetting; none of the real samples' images (PIV Challenge case E's bright bottom rows, DICe's
     synthetic plate tilted over a flat background included). A strip at the top is found there."""
-    from slmlab.images.dots import overlay_rows
+    from slmlab.images.overlay import overlay_rows
     xy, cov, rng = _synthetic_plate(n=7, pitch=64, radius=12.0, size=480, seed=3)
     y, x = np.mgrid[0:480, 0:480] / 479.0
     plate = 180 * (1 - 0.5 * cov)

@@ -298,7 +298,7 @@ def test_a_two_level_plate_s_markers_are_read_among_its_dots_and_only_there(rig,
     two or four left unnumbered before: stereo-dic:35's square joined to the dot beside it on the edge of a window
     streak, 1.19 times the dots' median area at the lowest level and so not read apart (1.6 times its neighbours':
     :func:`slmlab.images.markers.near_median`); stereo-piv:32's text strip under the plate's last row read as a
-    square and three blobs (the strip is now found and left out: :func:`slmlab.images.dots.overlay_rows`); on
+    square and three blobs (the strip is now found and left out: :func:`slmlab.images.overlay.overlay_rows`); on
     stereo-piv:34 a noisy dot next to a hot pixel read near its top as a square (a shape at a lattice node is the
     next dot); stereo-dic:37's square under everything together, joined to its dot at every level, 7.1 times the
     empty holes' spread (held to 5 σ of the reduced image before, 7.4 of that spread)."""

@@ -1,5 +1,9 @@
 """Images as a camera writes them, turned into dot centres: the input of every model (paper §3).
 
+``robust``
+    robust statistics of pixels (medians of integers, the median absolute deviation);
+``overlay``
+    a camera's text strip: found, left out of the contrast mesh, painted over for the centres;
 ``dots``
     finding a plate's dots: a threshold sweep over the local contrast, hot pixels, the local search;
 ``markers``

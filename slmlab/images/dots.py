@@ -42,13 +42,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
+from .overlay import outside_nil, overlay_rows, picture_rows, within
+from .robust import mad
 
 __all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
            "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
-           "gather_patches", "Contrast", "ContrastMesh", "overlay_rows", "overlay_painted", "robust_sigma", "OVERLAY_ROWS",
-           "OVERLAY_SHARE", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
+           "gather_patches", "Contrast", "ContrastMesh", "reduction", "local_contrast", "local_contrasts", "column_offsets", "Candidates", "sweep",
            "HOT_SHARE", "hot_pixel_flags", "hot_images_needed", "camera_hot_pixels", "clean_hot_pixels", "search_missing"]
 
 #: the sweep's lowest level [noise σ of the smoothed, reduced image]
@@ -82,10 +83,6 @@ NCC_STRONG = 0.8
 #: image): pixels standing out in all seven lie on a dot 0.5-1.1 % of the time, in six 5-10 %, in five 12-15 %, in two
 #: to four 18-41 % (the dots' texture in neighbouring planes, where the dots barely move)
 HOT_SHARE = 0.75
-#: a camera's text overlay covers at least this many rows and at most this share of an image's rows, at its top or
-#: bottom (:func:`overlay_rows`)
-OVERLAY_ROWS = 8
-OVERLAY_SHARE = 0.1
 #: the largest side of the reduced image the sweep runs on [px]
 SWEEP_SIDE_PX = 700
 #: window streaks are measured per band of rows: this many bands down the image (:func:`column_offsets`)
@@ -187,10 +184,11 @@ class Contrast:
     dark
         the dots are darker than the plate.
     picture
-        the reduced image's rows ``[a, b)`` the picture fills, beyond a camera's text overlay (:func:`overlay_rows`;
-        ``z`` is nil beyond them), or ``None``: all of them.
+        the reduced image's rows ``[a, b)`` the picture fills, beyond a camera's text overlay
+        (:func:`slmlab.images.overlay.overlay_rows`; ``z`` is nil beyond them), or ``None``: all of them.
     overlay
-        the full-resolution rows the overlay covers at the top and at the bottom (:func:`overlay_rows`).
+        the full-resolution rows the overlay covers at the top and at the bottom
+        (:func:`slmlab.images.overlay.overlay_rows`).
     """
 
     z: np.ndarray
@@ -206,7 +204,7 @@ class Contrast:
         """The contrast of ``img``, an image like the one this was taken of (the same with hot pixels
         replaced), on this one's mesh: the mesh's medians and spreads do not see a few pixels."""
         small, r = _reduced(img)
-        z = _outside_nil((small - self.background) / self.spread, self.picture)
+        z = outside_nil((small - self.background) / self.spread, self.picture)
         return Contrast(-z if self.dark else z, r, self.background, self.spread, -small if self.dark else small,
                         self.dark, self.picture, self.overlay)
 
@@ -222,98 +220,6 @@ class Contrast:
 def reduction(shape: tuple[int, int]) -> int:
     """Reduction factor of the sweep image: the image's larger side over :data:`SWEEP_SIDE_PX`, rounded up."""
     return max(1, int(np.ceil(max(shape) / SWEEP_SIDE_PX)))
-
-
-def overlay_rows(img: np.ndarray) -> tuple[int, int]:
-    """How many rows at the top and at the bottom of ``img`` a camera's text overlay covers (0 where none): a band
-    of :data:`OVERLAY_ROWS` rows or more reaching the edge, at most :data:`OVERLAY_SHARE` of them, whose rows'
-    medians are one value within 0.5 % of the image's range (its 1st to 99th percentile: an overlay's fill, drawn on
-    the picture: no noise, no fall-off of the light; its text covers less than half a row), the band's median in
-    each eighth of its width too (a synthetic plate tilted over a flat background fills less than half of its first
-    rows: DICe's dot_06_0), beyond a step to the picture's rows next to it of twice their pixels' noise (dots over
-    less than half a row move its median by less than 1.4 σ: a flat plate's rows have one median too, down to its
-    first row of dots, 190 DN then 189 on stereo-dic:39 at its lowest contrast, under 1.5 DN of noise) and ten times
-    their medians' own (and twice the fill's tolerance). The mesh beside a dark strip under a bright plate took its median and spread from both (on
-    greenough:31 the plate's last two rows of dots, 30 of 1640, were at 0.0 σ and lost); its glyphs were read as
-    markers (stereo-piv:32: a black strip under a plate at 12 DN)."""
-    h = img.shape[0]
-    most = int(OVERLAY_SHARE * h)
-    n = most + 16
-    sub = img[:, ::4]
-    if most < OVERLAY_ROWS or sub.shape[1] < 8:
-        return 0, 0
-    lo, hi = np.percentile(sub[::4], [1, 99])
-    span = max(float(hi) - float(lo), 1e-6)
-    same = 0.005 * span
-    cut = []
-    for rows in (sub[:n], sub[::-1][:n]):
-        m = np.median(rows, axis=1).astype(np.float64)
-        off = np.abs(m - m[0]) > same
-        k = int(np.argmax(off)) if off.any() else n
-        picture = m[k:k + 16]
-        if not OVERLAY_ROWS <= k <= most or len(picture) < 16:
-            cut.append(0)
-            continue
-        step = np.abs(picture[:3] - m[0]).min()
-        across = [np.median(c) for c in np.array_split(rows[:k], 8, axis=1)]   # the fill all along
-        band = np.abs(np.asarray(across, np.float64) - m[0]).max() <= same
-        least = max(2 * _row_noise(rows[k:k + 16]), 10 * _row_noise(picture[:, None]), 2 * same)
-        cut.append(k if band and step >= least else 0)
-    return cut[0], cut[1]
-
-
-def robust_sigma(values: np.ndarray) -> float:
-    """The robust σ of ``values`` (any shape): 1.4826 times their median absolute deviation."""
-    return 1.4826 * _mad(np.asarray(values, np.float64).ravel(), integers=False)
-
-
-def _row_noise(rows: np.ndarray) -> float:
-    """The noise σ of ``rows`` ``(n, w)`` (a picture's pixels, or ``(n, 1)``: its rows' medians): the robust spread
-    of the differences of adjacent rows over √2, which a smooth fall-off of the light does not add to."""
-    return robust_sigma(np.diff(rows.astype(np.float32), axis=0)) / np.sqrt(2)
-
-
-def _picture_rows(cut: tuple[int, int], scale: int, rows: int, cell: int) -> tuple[int, int] | None:
-    """The reduced image's rows ``[a, b)`` clear of overlays ``cut`` (:func:`overlay_rows`, full-resolution rows)
-    at reduction ``scale``, the smoothing's reach (4 reduced rows: its kernel's half) beyond them too; ``None``
-    where there are none, or where fewer than a mesh ``cell`` of rows would be left."""
-    grow = [int(np.ceil(c / scale)) + 4 if c else 0 for c in cut]
-    return None if not any(cut) or rows - grow[0] - grow[1] < cell else (grow[0], rows - grow[1])
-
-
-def _outside_nil(z: np.ndarray, picture: tuple[int, int] | None) -> np.ndarray:
-    """``z`` (in place) nil outside the ``picture`` rows (:func:`_picture_rows`)."""
-    if picture is not None:
-        z[:picture[0]], z[picture[1]:] = 0, 0
-    return z
-
-
-def _within(small: np.ndarray, picture: tuple[int, int] | None, stat, *args):
-    """``stat(small, *args)`` (arrays the shape of ``small``) taken on the ``picture`` rows only, their edge rows
-    replicated over the rest."""
-    if picture is None:
-        return stat(small, *args)
-    a, b = picture
-    return tuple(cv2.copyMakeBorder(m, a, small.shape[0] - b, 0, 0, cv2.BORDER_REPLICATE)
-                 for m in stat(np.ascontiguousarray(small[a:b]), *args))
-
-
-def overlay_painted(img: np.ndarray, con: "Contrast") -> np.ndarray:
-    """``img`` with a camera's text overlay (``con.overlay``, :func:`overlay_rows`) painted over by the plate's
-    background in the picture's row next to it (``con.background``, each column's): the centres of the dots just
-    above a dark strip under a bright plate would take its edge for theirs (on greenough:31, 0.8 px). A copy; the
-    image itself where there is no overlay."""
-    if not any(con.overlay):
-        return img
-    out = img.copy()
-    h, w = img.shape
-    a, b = con.picture
-    for rows, edge in ((slice(0, con.overlay[0]), a), (slice(h - con.overlay[1], h), b - 1)):
-        line = cv2.resize(con.background[edge:edge + 1], (w, 1), interpolation=cv2.INTER_LINEAR)
-        if np.issubdtype(img.dtype, np.integer):
-            line = np.clip(np.rint(line), np.iinfo(img.dtype).min, np.iinfo(img.dtype).max)
-        out[rows] = line.astype(img.dtype)
-    return out
 
 
 def _mesh_statistics(small: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -375,10 +281,10 @@ class ContrastMesh:
         small, r = _reduced(img)
         cell = max(8, int(min(img.shape) / 16 / r))
         overlay = overlay_rows(img)
-        picture = _picture_rows(overlay, r, small.shape[0], cell)   # a camera's text strip left out
+        picture = picture_rows(overlay, r, small.shape[0], cell)   # a camera's text strip left out
         overlay = overlay if picture is not None else (0, 0)
-        bg, *sds = _within(small, picture, _mesh_statistics, cell)
-        return cls(small, r, cell, bg, tuple(sds), _within(small - bg, picture, column_offsets), picture, overlay)
+        bg, *sds = within(small, picture, _mesh_statistics, cell)
+        return cls(small, r, cell, bg, tuple(sds), within(small - bg, picture, column_offsets), picture, overlay)
 
     def streaky(self, dark: bool) -> bool:
         """Whether more than :data:`STREAK_SHARE` of the columns' offsets that both quartiles agree on stand out
@@ -393,10 +299,10 @@ class ContrastMesh:
         if self.streaky(dark):
             k = int(dark) if sided and not np.array_equal(self.streaks[int(dark)], self.streaks[2]) else 2
             if k not in self._again:   # both polarities share the mesh less the agreed offsets
-                self._again[k] = _within(self.small - self.streaks[k], self.picture, _mesh_statistics, self.cell)
+                self._again[k] = within(self.small - self.streaks[k], self.picture, _mesh_statistics, self.cell)
             again = self._again[k]
             b, sd = again[0] + self.streaks[k], again[1 + int(dark)]
-        z = _outside_nil((self.small - b) / sd, self.picture)
+        z = outside_nil((self.small - b) / sd, self.picture)
         return Contrast(-z if dark else z, self.scale, b, sd, -self.small if dark else self.small, dark, self.picture,
                         self.overlay)
 
@@ -678,26 +584,6 @@ def _hot_pairs(v: np.ndarray, nb: np.ndarray, inside: np.ndarray, sign: np.ndarr
     return hit
 
 
-def _median_of_integers(v: np.ndarray) -> float:
-    """``np.median`` of integer values ``v`` (any dtype), by counting them: the same number, without a sort."""
-    v = np.asarray(v).astype(np.int64, copy=False).ravel()
-    lo = int(v.min())
-    cum = np.cumsum(np.bincount(v - lo))
-    n = len(v)
-    at = np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right") + lo   # the middle order statistic(s)
-    return float(at.mean())
-
-
-def _mad(d: np.ndarray, *, integers: bool) -> float:
-    """The median absolute deviation of ``d`` from its median; of ``integers`` (differences of 8- or 16-bit
-    images) by :func:`_median_of_integers`, in half units where the median falls between two of them."""
-    if not integers or len(d) == 0:
-        return float(np.median(np.abs(d - np.median(d))))
-    twice = 2 * np.asarray(d).astype(np.int64)
-    m2 = int(round(2 * _median_of_integers(d)))
-    return _median_of_integers(np.abs(twice - m2)) / 2
-
-
 def hot_pixel_flags(img: np.ndarray) -> np.ndarray:
     """Flat indices (sorted) of the pixels of ``img`` that stand out like a hot (or dead) pixel, inside the dots
     too: a pixel exceeding all eight neighbours by more than 8 noise σ and by more than their own range (dead:
@@ -709,7 +595,7 @@ def hot_pixel_flags(img: np.ndarray) -> np.ndarray:
     sub = med[::4, ::4]
     d = (img[::4, ::4].astype(np.float32) - sub)[sub > sub.min()] if (sub > sub.min()).sum() > 100 else \
         (img[::4, ::4].astype(np.float32) - sub).ravel()
-    sigma = 1.4826 * _mad(d, integers=img.dtype != np.float32) + 1e-6
+    sigma = 1.4826 * mad(d, integers=img.dtype != np.float32) + 1e-6
     if img.dtype != np.float32:
         sigma = max(sigma, 1.0)                  # at least one grey level
     ys, xs = _off_median(img, med, sigma)

@@ -33,8 +33,8 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .centres import METHODS, refine, uneven_background
-from .dots import (Candidates, Contrast, ContrastMesh, clean_hot_pixels, overlay_painted, read_image, search_missing,
-                   sweep)
+from .dots import Candidates, Contrast, ContrastMesh, clean_hot_pixels, read_image, search_missing, sweep
+from .overlay import overlay_painted
 from .markers import (distinct_markers, filled_holes, joined_markers, marker_outline, off_lattice_markers,
                       painted_out)
 from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
@@ -192,7 +192,7 @@ def _dot_radius(loc: _Located) -> float:
 def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | None, two_level: bool,
             camera_hot: np.ndarray | None = None) -> _Located:
     """Steps 1-2 of the module docstring: candidates and lattice, a camera's text overlay painted over
-    (:func:`slmlab.images.dots.overlay_painted`), hot pixels (the camera's known ones
+    (:func:`slmlab.images.overlay.overlay_painted`), hot pixels (the camera's known ones
     ``camera_hot`` too, :func:`slmlab.images.dots.camera_hot_pixels`), the local search."""
     loc = _detect_any(img, dark, two_level)
     if loc.fit is None:
@@ -345,7 +345,7 @@ def _lattice_dots(cand: Candidates, fit: LatticeFit, searched) -> tuple[np.ndarr
 def _whole(xy: np.ndarray, radii: np.ndarray, shape: tuple[int, int], overlay: tuple[int, int] = (0, 0)
            ) -> np.ndarray:
     """Dots whose outline (a disk of ``radii`` [px], plus 1 px) lies wholly inside the image, clear of a camera's
-    text ``overlay`` (rows at its top and bottom, :func:`slmlab.images.dots.overlay_rows`)."""
+    text ``overlay`` (rows at its top and bottom, :func:`slmlab.images.overlay.overlay_rows`)."""
     h, w = shape
     m = np.asarray(radii, float) + 1
     return ((xy[:, 0] >= m) & (xy[:, 1] >= m + overlay[0]) & (xy[:, 0] <= w - 1 - m)
@@ -579,7 +579,7 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     """``empty(points (n, 2) [px]) -> (n,)``: where this image shows that a lattice site holds no dot of the
     plate (empty background, not a dot hidden): at least ``margin_px`` inside it, not saturated, on a
     background like the found dots' (within their range and three robust spreads; a saturated glare is not),
-    clear of a camera's text strip (:func:`slmlab.images.dots.overlay_rows`), and no noisier than 1.5 times theirs (window streaks or texture there may
+    clear of a camera's text strip (:func:`slmlab.images.overlay.overlay_rows`), and no noisier than 1.5 times theirs (window streaks or texture there may
     hide a dot from the sweep and the local search), and no candidate blob of any kind within a third of a
     pitch (a dot the lattice left off, too faint or pulled by a glare, is hidden, not absent). An empty
     plate line is evidence of the plate's edge only at such sites."""

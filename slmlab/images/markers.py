@@ -23,8 +23,9 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .dots import LOWEST_SIGMA, Candidates, Contrast, gather_patches, robust_sigma
+from .dots import LOWEST_SIGMA, Candidates, Contrast, gather_patches
 from .lattice import LatticeFit, inside_image
+from .robust import robust_sigma
 
 __all__ = ["Marker", "polygon_kind", "marker_kind", "split_marker", "marker_outline", "painted_out", "MERGED_AREA",
            "PLAIN_SHARE", "near_median", "local_peak", "HOLE_SIGMAS", "distinct_markers", "in_hole",
