@@ -342,16 +342,6 @@ def _lattice_dots(cand: Candidates, fit: LatticeFit, searched) -> tuple[np.ndarr
             np.r_[cand.area[fit.on], area], np.r_[cand.hole[fit.on], hole], np.r_[np.flatnonzero(fit.on), src])
 
 
-def _whole(xy: np.ndarray, radii: np.ndarray, shape: tuple[int, int], overlay: tuple[int, int] = (0, 0)
-           ) -> np.ndarray:
-    """Dots whose outline (a disk of ``radii`` [px], plus 1 px) lies wholly inside the image, clear of a camera's
-    text ``overlay`` (rows at its top and bottom, :func:`slmlab.images.overlay.overlay_rows`)."""
-    h, w = shape
-    m = np.asarray(radii, float) + 1
-    return ((xy[:, 0] >= m) & (xy[:, 1] >= m + overlay[0]) & (xy[:, 0] <= w - 1 - m)
-            & (xy[:, 1] <= h - 1 - m - overlay[1]))
-
-
 def _refined(loc: _Located, method: str, two_level: bool):
     """The lattice's dots refined to sub-pixel centres (:func:`slmlab.images.centres.refine`, on the image
     cleaned of hot pixels); those cut by the image edge or off the lattice refitted on the refined centres of the
@@ -362,7 +352,7 @@ def _refined(loc: _Located, method: str, two_level: bool):
     refined centres."""
     radii = np.sqrt(loc.area / np.pi)
     xy = refine(loc.clean, loc.xy, radii, dark=loc.dark, method=method)
-    whole = _whole(xy, radii, loc.clean.shape, loc.con.overlay)
+    whole = inside_image(xy, loc.clean.shape, radii + 1, loc.con.overlay)   # the dot's outline, plus 1 px
     use = whole if whole.sum() >= 12 else np.ones(len(xy), bool)    # a dot cut by the edge does not shape it
     model, _ = robust_model(loc.ab[use].astype(float), xy[use], loc.fit.pitch, two_level=two_level)
     off = np.hypot(*(xy - model.predict(loc.ab)).T)
@@ -579,8 +569,8 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     """``empty(points (n, 2) [px]) -> (n,)``: where this image shows that a lattice site holds no dot of the
     plate (empty background, not a dot hidden): at least ``margin_px`` inside it, not saturated, on a
     background like the found dots' (within their range and three robust spreads; a saturated glare is not),
-    clear of a camera's text strip (:func:`slmlab.images.overlay.overlay_rows`), and no noisier than 1.5 times theirs (window streaks or texture there may
-    hide a dot from the sweep and the local search), and no candidate blob of any kind within a third of a
+    clear of a camera's text strip (:func:`slmlab.images.overlay.overlay_rows`), and no noisier than 1.5 times
+    theirs (window streaks or texture there may hide a dot from the sweep and the local search), and no candidate blob of any kind within a third of a
     pitch (a dot the lattice left off, too faint or pulled by a glare, is hidden, not absent). An empty
     plate line is evidence of the plate's edge only at such sites."""
     con, shape = loc.con, loc.clean.shape
@@ -596,8 +586,7 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     lo, hi = float(bg.min()) - pad, float(bg.max()) + pad
 
     def empty(p: np.ndarray) -> np.ndarray:
-        ok = inside_image(p, shape, margin_px)
-        ok &= (p[:, 1] >= con.overlay[0] + margin_px) & (p[:, 1] <= shape[0] - 1 - con.overlay[1] - margin_px)
+        ok = inside_image(p, shape, margin_px, con.overlay)
         y, x = reduced(p)
         level = -con.signed[y, x] if con.dark else con.signed[y, x]
         if blobs is not None and len(p):
@@ -680,7 +669,8 @@ def _textured(method: str, res: dict) -> bool:
     dots do not show on its dark plate: on stereo-piv:38's two-level plate under everything together, the moments,
     0.142 px, kept one dot more than the edge fits, 0.075; the model fit, 0.040, was not tried)."""
     edge = min(res.get("ellipse", np.inf), res.get("edges", np.inf))
-    return method in ("ellipse", "edges") or (method in ("moments", "symmetry") and edge < AUTO_EDGE_RATIO * res[method])
+    whole = method in ("moments", "symmetry") and edge < AUTO_EDGE_RATIO * res[method]
+    return method in ("ellipse", "edges") or whole
 
 
 def _textured_fit(tables: dict, res: dict) -> tuple[bool, dict]:

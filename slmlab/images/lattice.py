@@ -398,10 +398,13 @@ class LatticeFit:
         return 0.3 * np.minimum(np.hypot(*s[:, :, 0].T), np.hypot(*s[:, :, 1].T))
 
 
-def inside_image(w: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
-    """Points ``w`` ``(n, 2)`` [px] at least ``margin`` [px] inside an image of ``shape``."""
+def inside_image(w: np.ndarray, shape: tuple[int, int], margin, overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Points ``w`` ``(n, 2)`` [px] at least ``margin`` [px] (one, or one per point) inside an image of ``shape``,
+    and clear of a camera's text ``overlay`` (its rows at the top and bottom,
+    :func:`slmlab.images.overlay.overlay_rows`)."""
     h, wd = shape
-    return (w[:, 0] >= margin) & (w[:, 1] >= margin) & (w[:, 0] <= wd - 1 - margin) & (w[:, 1] <= h - 1 - margin)
+    return ((w[:, 0] >= margin) & (w[:, 1] >= margin + overlay[0]) & (w[:, 0] <= wd - 1 - margin)
+            & (w[:, 1] <= h - 1 - margin - overlay[1]))
 
 
 def _assign(fit: LatticeFit, nodes: np.ndarray, tree: cKDTree, area: np.ndarray, ref_area: float,

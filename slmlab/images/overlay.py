@@ -27,9 +27,9 @@ def overlay_rows(img: np.ndarray) -> tuple[int, int]:
     rows: DICe's dot_06_0), beyond a step to the picture's rows next to it of twice their pixels' noise (dots over
     less than half a row move its median by less than 1.4 σ: a flat plate's rows have one median too, down to its
     first row of dots, 190 DN then 189 on stereo-dic:39 at its lowest contrast, under 1.5 DN of noise) and ten times
-    their medians' own (and twice the fill's tolerance). The mesh beside a dark strip under a bright plate took its median and spread from both (on
-    greenough:31 the plate's last two rows of dots, 30 of 1640, were at 0.0 σ and lost); its glyphs were read as
-    markers (stereo-piv:32: a black strip under a plate at 12 DN)."""
+    their medians' own (and twice the fill's tolerance). The mesh beside a dark strip under a bright plate took its
+    median and spread from both (on greenough:31 the plate's last two rows of dots, 30 of 1640, were at 0.0 σ and
+    lost); its glyphs were read as markers (stereo-piv:32: a black strip under a plate at 12 DN)."""
     h = img.shape[0]
     most = int(OVERLAY_SHARE * h)
     n = most + 16
@@ -88,10 +88,10 @@ def within(small: np.ndarray, picture: tuple[int, int] | None, stat, *args):
 
 
 def overlay_painted(img: np.ndarray, con) -> np.ndarray:
-    """``img`` with a camera's text overlay (``con.overlay``, :func:`overlay_rows`; ``con`` its :class:`slmlab.images.dots.Contrast`) painted over by the
-    plate's background in the picture's row next to it (``con.background``, each column's): the centres of the dots just
-    above a dark strip under a bright plate would take its edge for theirs (on greenough:31, 0.8 px). A copy; the
-    image itself where there is no overlay."""
+    """``img`` with a camera's text overlay (``con.overlay``, :func:`overlay_rows`; ``con`` its
+    :class:`slmlab.images.dots.Contrast`) painted over by the plate's background in the picture's row next to it
+    (``con.background``, each column's): the centres of the dots just above a dark strip under a bright plate would
+    take its edge for theirs (on greenough:31, 0.8 px). A copy; the image itself where there is no overlay."""
     if not any(con.overlay):
         return img
     out = img.copy()
