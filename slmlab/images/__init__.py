@@ -8,6 +8,8 @@
     finding a plate's dots: a threshold sweep over the local contrast, hot pixels, the local search;
 ``markers``
     the plate's markers: shapes off the lattice, shapes joined to a dot, blobs in a two-level plate's holes;
+``streaks``
+    window streaks read along the columns through each dot;
 ``centres``
     their sub-pixel centres (``moments``, ``ellipse``, ``edges``, ``fit``, ``symmetry``);
 ``lattice``

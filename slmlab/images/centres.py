@@ -2,8 +2,9 @@
 
 Each dot's patch is flat-fielded by a background plane fitted on a ring outside the dot and its blur
 (:func:`flatten`), so that vignetting, a gradient or a bright region beside the dot does not pull its centre;
-where window streaks cross the image's dots (:func:`streaky`) each column of the patch is flat-fielded too, by its
-own offset from the plane outside the dot. How far the blurred dots reach is measured once per image on a sample
+where window streaks cross the image's dots (:func:`streak_mask`) each column of the patch is flat-fielded too, by its
+own offset from the plane, read along a strip through the dot with every dot masked
+(:mod:`slmlab.images.streaks`). How far the blurred dots reach is measured once per image on a sample
 of them (:func:`dot_reach`).
 
 * ``moments`` (:func:`refine_moments`): intensity-weighted centroid of the flat-fielded contrast inside an
@@ -41,23 +42,29 @@ from scipy.spatial import cKDTree
 from scipy.special import erfc
 
 from .dots import as_float, gather_patches
+from .streaks import clear_of_dots, strip_columns
 
 __all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "FIT_NONLINEAR", "FIT_PARAMETERS",
-           "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streaky", "saturation",
-           "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse", "refine_edges",
-           "refine_symmetry", "refine"]
+           "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
+           "saturation", "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse",
+           "refine_edges", "refine_symmetry", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit", "symmetry")
 #: the columns around a dot are flat-fielded one by one (window streaks, :func:`flatten`) above this mean
-#: square of their offsets over its noise expectation (a flat background: 0.5-1; window streaks across the
-#: dot: 3-20 on the rendered zoo)
+#: square of their offsets over its noise expectation (about 1 without streaks; window streaks across the
+#: dot: 3-100 on the rendered zoo)
 STREAKINESS = 2.0
 #: ... and the columns' offsets above the dot correlate with those below it by more than this (window streaks
 #: on the rendered zoo: a median 0.6-1.0; real plates' texture, JPEG blocks and neighbours: 0.0-0.4)
 COHERENCE = 0.8
-#: ... on an image where at least this share of the dots is so crossed (:func:`streaky`; the rendered zoo's
-#: streaks: 0.25-0.8 of the dots; real plates: up to 0.05, dots by a dust line or the image's edge)
+#: ... and, for bright dots on a dark plate, none of them changes the plate's light by more than this share of it
+#: (the model fit divides the dots by the streaks' gain, :func:`_streak_gain`): a window's streaks dim or brighten
+#: what is behind them (the rendered zoo's: up to 0.35); the PIV Challenge's case E has column structure of up to
+#: 0.4 of its near-black plate's level around its bright dots, and lines one pixel wide far above it
+STREAK_DEPTH = 0.5
+#: ... on an image where at least this share of the dots is so crossed (:func:`streak_mask`; the rendered zoo's
+#: streaks: 0.1-0.5 of the dots; the real sample images: up to 0.08, case E's camera lines and edges)
 STREAK_SHARE = 0.1
 #: angular sectors of a dot's outline in :func:`refine_edges` (the outermost crossing of each is used)
 SECTORS = 64
@@ -67,8 +74,9 @@ SECTORS = 64
 class Flat:
     """Flat-fielded contrast patches ``±(1 − I/B)`` around integer centres ``base``; ``B`` is a plane
     (coefficients ``coef`` on offsets ``ox, oy``) fitted on a ring of integer offsets, the same ring for all
-    dots, so one pseudo-inverse serves the whole image; with ``columns``, plus each column's mean offset from
-    the plane outside the dot (``column`` ``(n, S)`` [grey levels]: window streaks) where the dot's
+    dots, so one pseudo-inverse serves the whole image; with ``columns``, plus each column's offset from the
+    plane along a strip through the dot (``column`` ``(n, S)`` [grey levels]: window streaks,
+    :func:`slmlab.images.streaks.strip_columns`) where the dot's
     ``streakiness`` ``(n,)``, the mean square of those offsets over their noise variance (about 1 or less
     without streaks), is above :data:`STREAKINESS` and their ``coherence`` ``(n,)``, the correlation of
     the offsets above the dot with those below it, above :data:`COHERENCE` (else zero)."""
@@ -83,13 +91,15 @@ class Flat:
     coherence: np.ndarray | None = None
 
 
-def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: bool = False,
+def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: np.ndarray | None = None,
             crop: int | None = None) -> Flat:
     """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
-    ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, plus per column the mean offset from it of
-    the pixels outside ``ring_in`` to the patch's edge, where they differ by more than noise: window streaks
-    run along the columns); ``crop``: the contrast (and ``ox, oy``, ``column``) only within this many pixels of
-    the centre (the ring and the columns are measured on the whole patch all the same)."""
+    ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, the image's pixels clear of every dot
+    (:func:`slmlab.images.streaks.clear_of_dots`), plus per column its offset from the plane along a strip through
+    the dot, where the offsets stand out of the noise alike above and below it and, for bright dots, change the
+    plate's light by at most :data:`STREAK_DEPTH`: window streaks run along the columns,
+    :func:`slmlab.images.streaks.strip_columns`); ``crop``: the contrast (and ``ox, oy``, ``column``) only within
+    this many pixels of the centre (the ring and the columns are measured on the whole patch all the same)."""
     half = int(np.ceil(ring_in + 5))
     p, base = gather_patches(img, centres, half)
     p = p.astype(np.float32)
@@ -99,46 +109,27 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
-    column, chi, rho, background = (None,) * 4
-    if columns:   # the columns are measured on the whole patch
-        background = _plane(coef, ox[None], oy[None])
-        column, chi, rho = _columns(p - background, (d > ring_in) & (d <= half), oy)
-        column[(chi <= STREAKINESS) | (rho <= COHERENCE)] = 0.0
+    column, chi, rho = None, None, None
+    if columns is not None:   # the columns are measured on a strip as wide as the whole patch
+        column, chi, rho = strip_columns(img, base, half, coef, columns, ring.sum(axis=0), saturation(img))
+        light = dark | (np.abs(column).max(axis=1) <= STREAK_DEPTH * np.maximum(coef[:, 0], 1.0))
+        column[(chi <= STREAKINESS) | (rho <= COHERENCE) | ~light] = 0.0
     if crop is not None and crop < half:
         sl = slice(half - crop, half + crop + 1)
         p, ox, oy = p[:, sl, sl], ox[sl, sl], oy[sl, sl]
-        if columns:
-            background, column = background[:, sl, sl], column[:, sl]
-    if background is None:
-        background = _plane(coef, ox[None], oy[None])
-    if column is not None:
-        background = background + column[:, None, :]
-    return Flat(base, ox, oy, _contrast(p, background, dark), coef, column, chi, rho)
+        column = None if column is None else column[:, sl]
+    con = _contrast(p, _plane(coef, ox[None], oy[None]), dark, None if column is None else column[:, None, :])
+    return Flat(base, ox, oy, con, coef, column, chi, rho)
 
 
-def _columns(res: np.ndarray, outside: np.ndarray, oy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each column's mean of the residuals ``res`` ``(n, S, S)`` over the pixels ``outside`` ``(S, S)`` the dot
-    [grey levels]; per patch the mean square of those means over their variance from the residuals' robust
-    spread (about 1 if the columns differ by noise alone), and the correlation of the columns' means above
-    the dot (``oy < 0``) with those below it (a streak runs through both; texture and noise do not)."""
-    k = outside.sum(axis=0).astype(np.float32)                                # pixels per column
-    mean = (res * outside).sum(axis=1) / np.maximum(k, 1)
-    v = res[:, outside]
-    sigma2 = (1.4826 * np.median(np.abs(v - np.median(v, axis=1, keepdims=True)), axis=1)) ** 2 + 1e-12
-    use = k >= 4
-    chi = (mean[:, use] ** 2 * k[use]).mean(axis=1) / sigma2
-    halves = []
-    for side in (outside & (oy < 0), outside & (oy > 0)):
-        m = ((res * side).sum(axis=1) / np.maximum(side.sum(axis=0), 1))[:, use]
-        halves.append(m - m.mean(axis=1, keepdims=True))
-    up, down = halves
-    rho = (up * down).sum(axis=1) / np.sqrt((up * up).sum(axis=1) * (down * down).sum(axis=1) + 1e-12)
-    return np.where(use, mean, 0.0).astype(np.float32), chi, rho
-
-
-def _contrast(values: np.ndarray, background: np.ndarray, dark: bool) -> np.ndarray:
-    """A dot's contrast: ``1 − I/B`` for dark dots (flat-fielded: illumination scales plate and dot alike),
-    ``I − B`` for bright dots on a dark plate (whose background is an offset, often near zero)."""
+def _contrast(values: np.ndarray, plane: np.ndarray, dark: bool, column: np.ndarray | None = None) -> np.ndarray:
+    """A dot's contrast on the background ``B`` = ``plane`` + ``column`` (window streaks' offsets, or ``None``):
+    ``1 − I/B`` for dark dots (flat-fielded: illumination scales plate and dot alike), ``I − B`` for bright dots on
+    a dark plate (whose background is an offset, often near zero). Dividing bright dots by a streak's gain ``B/plane``
+    as well took the PIV Challenge's case E, whose dark plate holds its own column structure around the dots,
+    from 0.061 to 0.121 px lattice residual in one image (two dots lost); the model fit divides by it
+    (:func:`_streak_gain`)."""
+    background = plane if column is None else plane + column
     if dark:
         return 1.0 - values / np.maximum(background, 1.0)
     return values - background
@@ -161,7 +152,7 @@ def profile_radius(flat: Flat, radius: float) -> float:
 
 
 def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   iterations: int = 3, reach: float | None = None, columns: bool = False) -> np.ndarray:
+                   iterations: int = 3, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
 
     ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
@@ -212,7 +203,7 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   rays: int = 48, iterations: int = 2, reach: float | None = None, columns: bool = False
+                   rays: int = 48, iterations: int = 2, reach: float | None = None, columns: np.ndarray | None = None
                    ) -> np.ndarray:
     """Sub-pixel centres from an ellipse fitted to the half-contrast crossings along ``rays`` rays.
 
@@ -235,10 +226,10 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     for _ in range(iterations):
         f = c - flat.base
         vals = _bilinear(img, c[:, 0, None, None] + ox, c[:, 1, None, None] + oy)
-        bg = _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None])
-        if flat.column is not None:   # the columns' offsets, linearly between the pixels' columns
-            bg = bg + _column_at(flat.column, np.broadcast_to(ox + f[:, 0, None, None], bg.shape))
-        con = _contrast(vals, bg, dark)
+        plane = _plane(flat.coef, ox + f[:, 0, None, None], oy + f[:, 1, None, None])
+        col = None if flat.column is None else _column_at(   # linearly between the pixels' columns
+            flat.column, np.broadcast_to(ox + f[:, 0, None, None], plane.shape))
+        con = _contrast(vals, plane, dark, col)
         level = 0.5 * np.median(con[:, :, :core], axis=(1, 2))
         below = con < level[:, None, None]
         below[:, :, 0] = False
@@ -348,7 +339,7 @@ def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: boo
 
 
 def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None,
-                 columns: bool = False, beyond: int | None = None):
+                 columns: np.ndarray | None = None, beyond: int | None = None):
     """Flat-fielded contrast patches (:func:`flatten`, ``columns`` too) on a ring just outside the dots'
     reach, measured by :func:`dot_reach` unless given [px]; and the reach. ``beyond``: the contrast only
     within the reach plus this many pixels (the whole patch if ``None``)."""
@@ -359,7 +350,7 @@ def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
 
 
 def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                 iterations: int = 1, reach: float | None = None, columns: bool = False) -> np.ndarray:
+                 iterations: int = 1, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] from a conic fitted to the dots' half-contrast crossings.
 
     The contrast is flat-fielded (:func:`flatten`: a plane fitted per dot on a ring outside the dot and its
@@ -615,18 +606,19 @@ def saturation(img: np.ndarray) -> float:
 def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool) -> bool:
     """Whether the background under the image's dots ``(n, 2)`` [px] is one the ring-flattened estimators
     extrapolate badly: saturated pixels (:func:`saturation`) within the dots' reach + 2 px of a dot (a bright
-    region beside it) or window streaks across the dots (:func:`streaky`); where :func:`refine_fit` is
+    region beside it) or window streaks across the dots (:func:`streak_mask`); where :func:`refine_fit` is
     worth its time."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return False
     reach = dot_reach(img, c, radii, dark)
     p, _ = gather_patches(img, c, int(np.ceil(reach + 2)))
-    return bool((p >= saturation(img)).any()) or streaky(img, c, radii, dark, reach)
+    return bool((p >= saturation(img)).any()) or streak_mask(img, c, radii, dark, reach) is not None
 
 
 def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-               iterations: int = FIT_ITERATIONS, reach: float | None = None, columns: bool = False) -> np.ndarray:
+               iterations: int = FIT_ITERATIONS, reach: float | None = None, columns: np.ndarray | None = None
+               ) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] by a least-squares fit of a model of the dot and its background to
     the pixels within the dots' reach + 2 px (:func:`fit_dots`, :func:`_dot_model`): a blurred ellipse whose
     depth varies as a plane on a quadratic background, started from the :func:`refine_moments` centre.
@@ -649,7 +641,7 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
 
 
 def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, iterations: int,
-                 reach: float | None, columns: bool) -> tuple[np.ndarray, np.ndarray]:
+                 reach: float | None, columns: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`refine_fit`'s centres ``(n, 2)`` [px], and which dots were fitted with their outline held ``(n,)``."""
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
@@ -662,8 +654,8 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
     sat = saturation(img)
     censored = p >= sat
     weight = np.ones_like(p)
-    if columns:
-        p, weight = _streak_gain(img, p, start, reach, dark, sat)
+    if columns is not None:
+        p, weight = _streak_gain(img, p, start, reach, dark, sat, columns)
     off = np.arange(-half, half + 1, dtype=np.float64)
     oy, ox = np.meshgrid(off, off, indexing="ij")
     disk = np.hypot(ox, oy) <= reach + 2
@@ -723,13 +715,13 @@ def _neighbours_outline(theta: np.ndarray, at: np.ndarray, whole: np.ndarray, pa
 
 
 def _streak_gain(img: np.ndarray, p: np.ndarray, start: np.ndarray, reach: float, dark: bool,
-                 sat: float) -> tuple[np.ndarray, np.ndarray]:
+                 sat: float, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Patches ``p`` ``(n, S, S)`` around ``start`` divided by their columns' gain under window streaks (the plane plus
     the column offsets of :func:`flatten`, over the plane), and pixel weights: 0 in a column whose offset was
     measured on saturated pixels, along a streak (:data:`CLIPPED_SHARE`: its gain, and what its saturated pixels
     bound, unknown), else 1; ``sat``: :func:`saturation`."""
     half = p.shape[1] // 2
-    flat = flatten(img, start, reach + 1, dark, columns=True)
+    flat = flatten(img, start, reach + 1, dark, columns=free)
     k = flat.ox.shape[0] // 2 - half
     col = flat.column[:, k:k + 2 * half + 1]
     level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
@@ -780,7 +772,7 @@ def _half_disk(reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                    iterations: int = 4, reach: float | None = None, columns: bool = False) -> np.ndarray:
+                    iterations: int = 4, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres as the points of symmetry of the flat-fielded contrast ``C``: Gauss-Newton on
     ``Σ_u w(u) r(u)²``, ``r(u) = C(c + u) − C(c − u)``, over the pixel offsets ``u`` of a disk reaching as far as
     the dots' blur (:func:`dot_reach`), bilinear samples, the Jacobian from their central differences.
@@ -839,18 +831,22 @@ def _symmetry_step(con: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarra
     return np.clip(step, -1.0, 1.0), jac
 
 
-def streaky(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float) -> bool:
-    """Whether window streaks cross the image's dots ``(n, 2)`` [px]: at least :data:`STREAK_SHARE` of them
-    (of at most 32 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`) and
-    alike above and below the dot (:data:`COHERENCE`), on patches reaching ``reach`` [px] (:func:`flatten`)."""
+def streak_mask(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float
+                ) -> np.ndarray | None:
+    """Whether window streaks cross the image's dots ``(n, 2)`` [px], and where to read them: the pixels clear of
+    every dot (:func:`slmlab.images.streaks.clear_of_dots`) if at least :data:`STREAK_SHARE` of the dots (of at
+    most 32 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`), alike above
+    and below the dot (:data:`COHERENCE`), along strips through them (:func:`flatten`, patches reaching ``reach``
+    [px]); else ``None``."""
+    free = clear_of_dots(img.shape, centres, reach)
     sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 32)).astype(int)]
-    flat = flatten(img, sample, reach + 1, dark, columns=True)
-    return bool(np.mean((flat.streakiness > STREAKINESS) & (flat.coherence > COHERENCE)) >= STREAK_SHARE)
+    flat = flatten(img, sample, reach + 1, dark, columns=free)
+    return free if np.mean(flat.column.any(axis=1)) >= STREAK_SHARE else None
 
 
 def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool, method: str) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured once
-    (:func:`dot_reach`); on an image crossed by window streaks (:func:`streaky`) the columns of each dot they
+    (:func:`dot_reach`); on an image crossed by window streaks (:func:`streak_mask`) the columns of each dot they
     cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a
     coarse first guess) are refined again from where they moved to, flat-fielded on a ring around their new place
     (not a dot ``fit`` with its outline held, half in a clipped streak: its moments there would start it from the
@@ -861,7 +857,7 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
     fn = {"moments": refine_moments, "ellipse": refine_ellipse, "edges": refine_edges, "fit": refine_fit,
           "symmetry": refine_symmetry}[method]
     reach = dot_reach(img, c, radii, dark)
-    columns = streaky(img, c, radii, dark, reach)
+    columns = streak_mask(img, c, radii, dark, reach)
     if method == "fit":
         xy, held = _fit_centres(img, c, radii, dark, FIT_ITERATIONS, reach, columns)
     else:

@@ -1,0 +1,113 @@
+"""Window streaks read along the columns through each dot (:mod:`slmlab.images.centres` flat-fields each dot's
+columns by them, :func:`slmlab.images.centres.flatten`).
+
+A streak on a window in front of the plate dims or brightens whole columns of the image, plate and dots alike,
+fading slowly along them. A dot's own patch holds only a few pixels per column beside the dot, too few to read a
+streak in noise; a strip as wide as the patch and a few times as tall holds several times more, once every dot is
+masked (:func:`clear_of_dots`). Each column's level above the dot and below it (:func:`strip_columns`) tells a
+streak, which runs through both, from texture and noise, which do not.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .robust import masked_median, midmean
+
+__all__ = ["STRIP_HALVES", "STRIP_APART", "clear_of_dots", "strip_columns"]
+
+#: a dot's columns are read on a strip this many times its patch's half side above and below it
+#: (:func:`strip_columns`; the patch alone, a few pixels per column beside the dot, lost streaks of 10 grey levels
+#: in noise of 8; 3 read strong streaks on a clean image worse, the fade along them and the plate's edge farther
+#: off, by 10-30 %)
+STRIP_HALVES = 2
+#: where a column's level above the dot and below it differ by more than this many times the columns' spread
+#: of that difference, something else is on one side and the column is left out
+STRIP_APART = 5.0
+
+
+def clear_of_dots(shape: tuple[int, int], centres: np.ndarray, reach: float) -> np.ndarray:
+    """The pixels ``shape`` of an image farther than ``reach`` + 1 px from every dot centre ``(n, 2)`` [px] (the
+    plate between the dots, where :func:`strip_columns` reads window streaks)."""
+    free = np.ones(shape, np.uint8)
+    r = int(np.ceil(reach + 1))
+    for x, y in np.rint(np.asarray(centres, float)[np.isfinite(centres).all(axis=1)]).astype(int):
+        cv2.circle(free, (int(x), int(y)), r, 0, -1)
+    return free.view(bool)   # 0 and 1 bytes: a bool view, no copy
+
+
+def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray, free: np.ndarray,
+                  ring: np.ndarray, sat: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Window streaks: each column's offset ``(n, S)`` [grey levels] from the plane ``coef`` of the patches at
+    ``base`` (side ``S = 2·half + 1``), the mean of its levels above and below the dot (:func:`_strip_levels`), each
+    less its line across the columns weighted by the column's pixels of the plane's ring ``ring`` ``(S,)``, the
+    saturated columns left out (the plane took in the streaks' mean and slope there, and a row's level the
+    streaks' share of it). A patch alone
+    holds a few pixels per column beside its dot (at 8 grey levels of noise a streak of 10 went unread). A column
+    whose two levels differ by more than :data:`STRIP_APART` times the columns' spread of that difference holds
+    something else on one side (a marker, another dot); it and a column masked to a few pixels take their
+    neighbours' offsets (:func:`_filled`); a column with pixels at ``sat``
+    (saturated) is read as it is (its offset at least what it shows) and left out of that spread (a clipped band's
+    columns, equal above and below, made it nil and every other column an outlier). Per patch also the mean square
+    of the offsets over their noise variance (from the difference above less below, which a streak leaves out,
+    and at least a grey level's: about 1 without streaks) and the correlation of the offsets above with those
+    below (a streak runs through both; texture and noise do not)."""
+    (up, k_up), (down, k_down), clipped = _strip_levels(img, base, half, coef, free, sat)
+    ok = (k_up >= 4) & (k_down >= 4)
+    weight = ring * (ok & ~clipped)   # a clipped column's level only bounds its offset
+    up, down = (_less_line(np.where(ok, v, 0.0), np.arange(-half, half + 1), weight) for v in (up, down))
+    d = up - down
+    centre = midmean(d, ok, 1)[0][:, None]
+    quantum = np.sqrt(2 / 12 / np.maximum(np.median(np.minimum(k_up, k_down), axis=1), 1))   # 1 grey level
+    spread = np.maximum(1.4826 * masked_median(np.abs(d - centre), ok & ~clipped, 1), quantum)
+    ok &= clipped | (np.abs(d - centre) <= STRIP_APART * spread[:, None])
+    up, down = np.where(ok, up, 0.0), np.where(ok, down, 0.0)
+    column = _filled(0.5 * (up + down), ok)
+    chi = (column ** 2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1) / (0.25 * spread ** 2)
+    up, down = (np.where(ok, v - v.sum(axis=1, keepdims=True) / np.maximum(ok.sum(axis=1, keepdims=True), 1), 0.0)
+                for v in (up, down))
+    rho = (up * down).sum(axis=1) / np.sqrt((up * up).sum(axis=1) * (down * down).sum(axis=1) + 1e-12)
+    return column.astype(np.float32), chi, rho
+
+
+def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray, free: np.ndarray, sat: float
+                  ) -> tuple:
+    """Each column's level ``(n, S)`` above the dot and below it, with how many pixels, on a strip as wide as the
+    patch (``S = 2·half + 1``) and :data:`STRIP_HALVES` times ``half`` above and below it, on the pixels ``free`` of
+    every dot (:func:`clear_of_dots`): each pixel less the plane ``coef``, each row less its level (the background's
+    curve along the column), then the columns' :func:`slmlab.images.robust.midmean`; and which columns hold a
+    pixel at ``sat`` (saturated)."""
+    h, w = img.shape
+    reach = STRIP_HALVES * half
+    oy, ox = np.arange(-reach, reach + 1), np.arange(-half, half + 1)
+    ys, xs = base[:, 1, None] + oy, base[:, 0, None] + ox
+    yc, xc = np.clip(ys, 0, h - 1)[:, :, None], np.clip(xs, 0, w - 1)[:, None, :]
+    values = img[yc, xc]
+    use = free[yc, xc] & (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
+    clipped = (use & (values >= sat)).any(axis=1)                           # (n, S)
+    res = values.astype(np.float32) - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox[None, None, :]
+                                       + coef[:, 2, None, None] * oy[None, :, None]).astype(np.float32)
+    res -= midmean(res, use, 2)[0][:, :, None].astype(np.float32)
+    up, down = (midmean(res[:, side], use[:, side], 1) for side in (oy < 0, oy > 0))
+    return up, down, clipped
+
+
+def _filled(column: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Each row of ``column`` ``(n, S)`` where not ``ok``, linearly between its nearest ``ok`` columns (the nearest
+    beyond the last), zero where none is: a column the dot and its neighbours above and below mask to a few pixels
+    lies inside a streak as wide as the window's blur (left at zero, a dense plate's middle column moved a fit
+    0.3 px on greenough:7201)."""
+    out = column.copy()
+    x = np.arange(column.shape[1])
+    for i in np.flatnonzero(~ok.all(axis=1) & ok.any(axis=1)):
+        out[i] = np.interp(x, x[ok[i]], column[i, ok[i]])
+    return out
+
+
+def _less_line(v: np.ndarray, x: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """``v`` ``(n, S)`` less its weighted least-squares line in ``x`` ``(S,)`` (weights ``(n, S)``)."""
+    design = np.stack([np.ones(len(x)), np.asarray(x, np.float64)])                        # (2, S)
+    normal = np.einsum("ks,ns,ls->nkl", design, weight, design) + 1e-9 * np.eye(2)
+    beta = np.linalg.solve(normal, np.einsum("ks,ns->nk", design, weight * v)[..., None])[..., 0]
+    return v - beta @ design
