@@ -41,9 +41,8 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
                   ring: np.ndarray, sat: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Window streaks: each column's offset ``(n, S)`` [grey levels] from the plane ``coef`` of the patches at
     ``base`` (side ``S = 2·half + 1``), the mean of its levels above and below the dot (:func:`_strip_levels`), each
-    less its line across the columns weighted by the column's pixels of the plane's ring ``ring`` ``(S,)``, the
-    saturated columns left out (the plane took in the streaks' mean and slope there, and a row's level the
-    streaks' share of it). A patch alone
+    less its line across the columns weighted by the column's pixels of the plane's ring ``ring`` ``(S,)`` (the
+    plane took in the streaks' mean and slope there, and a row's level the streaks' share of it). A patch alone
     holds a few pixels per column beside its dot (at 8 grey levels of noise a streak of 10 went unread). A column
     whose two levels differ by more than :data:`STRIP_APART` times the columns' spread of that difference holds
     something else on one side (a marker, another dot); it and a column masked to a few pixels take their
@@ -55,7 +54,7 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     below (a streak runs through both; texture and noise do not)."""
     (up, k_up), (down, k_down), clipped = _strip_levels(img, base, half, coef, free, sat)
     ok = (k_up >= 4) & (k_down >= 4)
-    weight = ring * (ok & ~clipped)   # a clipped column's level only bounds its offset
+    weight = ring * ok
     up, down = (_less_line(np.where(ok, v, 0.0), np.arange(-half, half + 1), weight) for v in (up, down))
     d = up - down
     centre = midmean(d, ok, 1)[0][:, None]
