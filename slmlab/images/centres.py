@@ -60,7 +60,8 @@ STREAKINESS = 2.0
 COHERENCE = 0.8
 #: ... and, for bright dots on a dark plate, none of them changes the plate's light by more than this share of it
 #: (the model fit divides the dots by the streaks' gain, :func:`_streak_gain`): a window's streaks dim or brighten
-#: what is behind them (the rendered zoo's: up to 0.35); the PIV Challenge's case E has column structure of up to
+#: what is behind them (the rendered zoo's bands: up to 0.35, times a fade of up to 1.5; a dot whose largest
+#: offset is beyond it keeps none); the PIV Challenge's case E has column structure of up to
 #: 0.4 of its near-black plate's level around its bright dots, and lines one pixel wide far above it
 STREAK_DEPTH = 0.5
 #: ... on an image where at least this share of the dots is so crossed (:func:`streak_mask`; the rendered zoo's
@@ -751,7 +752,7 @@ def _streak_gain(img: np.ndarray, p: np.ndarray, start: np.ndarray, reach: float
         clipped &= (full & side).sum(axis=1) >= CLIPPED_SHARE * np.maximum(side.sum(axis=0), 1)
     clipped &= clipped.mean(axis=1, keepdims=True) <= CLIPPED_SHARE   # a band through the patch, not a glare around
     clipped = clipped[:, k:k + 2 * half + 1]                                                     # (n, S)
-    gain = 1.0 + np.where(clipped, 0.0, col) / level
+    gain = np.maximum(1.0 + np.where(clipped, 0.0, col) / level, 0.25)   # a dark object over both halves
     return p / gain[:, None, :], np.broadcast_to(np.where(clipped, 0.0, 1.0)[:, None, :], p.shape).copy()
 
 
@@ -856,6 +857,8 @@ def streak_mask(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: b
     most 32 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`), alike above
     and below the dot (:data:`COHERENCE`), along strips through them (:func:`flatten`, patches reaching ``reach``
     [px]); else ``None``."""
+    if len(centres) == 0:
+        return None
     free = clear_of_dots(img.shape, centres, reach)
     sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 32)).astype(int)]
     flat = flatten(img, sample, reach + 1, dark, columns=free)

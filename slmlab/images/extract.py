@@ -65,9 +65,10 @@ AUTO_EDGE_RATIO = 0.7
 #: tried: the others are about as good there and tens of times faster; started from the dots' profile it came to
 #: 0.996 of the point of symmetry's on the stereo-DIC bench image, 2048 px, and took 0.35 s for 0.065). On dots the
 #: others find textured (an edge fit chosen) it is tried too and taken only below :data:`AUTO_EDGE_RATIO` of the
-#: best other's: window streaks across bright dots on a dark plate change the dots and not the plate, so the
-#: background's columns do not show them (stereo-piv:7's streaks: the fit 0.56-0.57 of the edge fits', 0.012 px
-#: RMS against 0.038), while on PIV Challenge case E's scratched dots the fit lies 0.83-0.86 of the edge fits'
+#: best other's: window streaks across bright dots on a dark plate change the dots far more than the plate, and
+#: where too faint there to be read between the dots (:mod:`slmlab.images.streaks`) they look like texture
+#: (stereo-piv:7's streaks, before they were read along strips: the fit 0.56-0.57 of the edge fits', 0.012 px RMS
+#: against 0.038), while on PIV Challenge case E's scratched dots the fit lies 0.83-0.86 of the edge fits'
 #: and its centres, as smooth, agree less with the organisers' picks (0.228 px against 0.220)
 AUTO_FIT_RATIO = 0.95
 #: ``method="auto"`` lets the model ``fit`` lose this many dots and still compete (its residual then taken on
@@ -667,7 +668,7 @@ def _textured(method: str, res: dict) -> bool:
     """Whether the dots look textured to :func:`choose_method`'s rule, having taken ``method`` on the estimators'
     lattice residuals ``res`` [px]: an edge estimator taken, or a whole-dot one taken although an edge estimator,
     which lost a dot, is below :data:`AUTO_EDGE_RATIO` times its residual (window streaks across a PIV rig's bright
-    dots do not show on its dark plate: on stereo-piv:38's two-level plate under everything together, the moments,
+    dots too faint on its dark plate to be read there: on stereo-piv:38's two-level plate under everything together, the moments,
     0.142 px, kept one dot more than the edge fits, 0.075; the model fit, 0.040, was not tried)."""
     edge = min(res.get("ellipse", np.inf), res.get("edges", np.inf))
     whole = method in ("moments", "symmetry") and edge < AUTO_EDGE_RATIO * res[method]

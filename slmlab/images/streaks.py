@@ -3,7 +3,7 @@ columns by them, :func:`slmlab.images.centres.flatten`).
 
 A streak on a window in front of the plate dims or brightens whole columns of the image, plate and dots alike,
 fading slowly along them. A dot's own patch holds only a few pixels per column beside the dot, too few to read a
-streak in noise; a strip as wide as the patch and a few times as tall holds several times more, once every dot is
+streak in noise; a strip as wide as the patch and about twice as tall holds several times more, once every dot is
 masked (:func:`clear_of_dots`). Each column's level above the dot and below it (:func:`strip_columns`) tells a
 streak, which runs through both, from texture and noise, which do not.
 """
@@ -32,7 +32,8 @@ def clear_of_dots(shape: tuple[int, int], centres: np.ndarray, reach: float) -> 
     plate between the dots, where :func:`strip_columns` reads window streaks)."""
     free = np.ones(shape, np.uint8)
     r = int(np.ceil(reach + 1))
-    for x, y in np.rint(np.asarray(centres, float)[np.isfinite(centres).all(axis=1)]).astype(int):
+    c = np.asarray(centres, float).reshape(-1, 2)
+    for x, y in np.rint(c[np.isfinite(c).all(axis=1)]).astype(int):
         cv2.circle(free, (int(x), int(y)), r, 0, -1)
     return free.view(bool)   # 0 and 1 bytes: a bool view, no copy
 
@@ -58,12 +59,12 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     up, down = (_less_line(np.where(ok, v, 0.0), np.arange(-half, half + 1), weight) for v in (up, down))
     d = up - down
     centre = midmean(d, ok, 1)[0][:, None]
-    quantum = np.sqrt(2 / 12 / np.maximum(np.median(np.minimum(k_up, k_down), axis=1), 1))   # 1 grey level
+    quantum = np.sqrt(2 / 12 / np.maximum(masked_median(np.minimum(k_up, k_down), ok, 1), 1))   # 1 grey level
     spread = np.maximum(1.4826 * masked_median(np.abs(d - centre), ok & ~clipped, 1), quantum)
     ok &= clipped | (np.abs(d - centre) <= STRIP_APART * spread[:, None])
     up, down = np.where(ok, up, 0.0), np.where(ok, down, 0.0)
     column = _filled(0.5 * (up + down), ok)
-    chi = (column ** 2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1) / (0.25 * spread ** 2)
+    chi = (np.where(ok, column, 0.0) ** 2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1) / (0.25 * spread ** 2)
     up, down = (np.where(ok, v - v.sum(axis=1, keepdims=True) / np.maximum(ok.sum(axis=1, keepdims=True), 1), 0.0)
                 for v in (up, down))
     rho = (up * down).sum(axis=1) / np.sqrt((up * up).sum(axis=1) * (down * down).sum(axis=1) + 1e-12)
