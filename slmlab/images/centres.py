@@ -93,14 +93,16 @@ class Flat:
 
 
 def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: np.ndarray | None = None,
-            crop: int | None = None) -> Flat:
+            crop: int | None = None, clipped_alone: bool = False) -> Flat:
     """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
     ``ring_in`` [px] (a plane on a 4 px ring; with ``columns``, the image's pixels clear of every dot
     (:func:`slmlab.images.streaks.clear_of_dots`), plus per column its offset from the plane along a strip through
     the dot, where the offsets stand out of the noise alike above and below it and, for bright dots, change the
     plate's light by at most :data:`STREAK_DEPTH`: window streaks run along the columns,
     :func:`slmlab.images.streaks.strip_columns`); ``crop``: the contrast (and ``ox, oy``, ``column``) only within
-    this many pixels of the centre (the ring and the columns are measured on the whole patch all the same)."""
+    this many pixels of the centre (the ring and the columns are measured on the whole patch all the same);
+    ``clipped_alone``: a dot whose patch saturates outside it reads its columns on the patch
+    (:func:`_clipped_patches_alone`; the model fit's)."""
     half = int(np.ceil(ring_in + 5))
     p, base = gather_patches(img, centres, half)
     p = p.astype(np.float32)
@@ -113,7 +115,8 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     column, chi, rho = None, None, None
     if columns is not None:   # the columns are measured on a strip as wide as the whole patch
         column, chi, rho = strip_columns(img, base, half, coef, columns, ring.sum(axis=0), saturation(img))
-        column = _clipped_patches_alone(column, p, _plane(coef, ox[None], oy[None]), d > ring_in, saturation(img))
+        if clipped_alone:
+            column = _clipped_patches_alone(column, p, _plane(coef, ox[None], oy[None]), d > ring_in, saturation(img))
         light = dark | (np.abs(column).max(axis=1) <= STREAK_DEPTH * np.maximum(coef[:, 0], 1.0))
         column[(chi <= STREAKINESS) | (rho <= COHERENCE) | ~light] = 0.0
     if crop is not None and crop < half:
@@ -129,8 +132,10 @@ def _clipped_patches_alone(column: np.ndarray, p: np.ndarray, plane: np.ndarray,
     """The columns' offsets ``(n, S)``, those of a dot whose patch ``p`` ``(n, S, S)`` saturates outside it
     (``outside`` ``(S, S)``) read on the patch alone: the mean of each column's pixels there less the ``plane``. A
     streak that saturates fades along the column, so a strip clips over other rows than the patch; read on the
-    strip, dots half under a saturating band were 0.25 px off (0.03 on the patch), and read on the strip less a
-    line without the clipped columns, a dot beside one on greenough:10 was lost."""
+    strip, the model fit put dots half under a saturating band 0.25 px off (0.03 on the patch), and read on the
+    strip less a line without the clipped columns, it lost a dot beside one on greenough:10. For the model fit alone
+    (its moments start and :func:`_streak_gain`): the other estimators, so read, took greenough's window streaks
+    from 0.007 px to 0.021."""
     clipped = ((p >= sat) & outside[None]).any(axis=(1, 2))
     if not clipped.any():
         return column
@@ -171,7 +176,8 @@ def profile_radius(flat: Flat, radius: float) -> float:
 
 
 def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   iterations: int = 3, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
+                   iterations: int = 3, reach: float | None = None, columns: np.ndarray | None = None,
+                   clipped_alone: bool = False) -> np.ndarray:
     """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
 
     ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
@@ -182,7 +188,7 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, clipped_alone=clipped_alone)
     con, ox, oy = _on_disk(flat.contrast, flat, reach)
     for _ in range(iterations):
         c = flat.base + _centroid(con, ox, oy, c - flat.base, reach)
@@ -358,13 +364,13 @@ def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: boo
 
 
 def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None,
-                 columns: np.ndarray | None = None, beyond: int | None = None):
+                 columns: np.ndarray | None = None, beyond: int | None = None, clipped_alone: bool = False):
     """Flat-fielded contrast patches (:func:`flatten`, ``columns`` too) on a ring just outside the dots'
     reach, measured by :func:`dot_reach` unless given [px]; and the reach. ``beyond``: the contrast only
     within the reach plus this many pixels (the whole patch if ``None``)."""
     reach = dot_reach(img, centres, radii, dark) if reach is None else reach
     crop = None if beyond is None else int(np.ceil(reach)) + beyond
-    return flatten(img, centres, reach + 1, dark, columns, crop), reach
+    return flatten(img, centres, reach + 1, dark, columns, crop, clipped_alone=clipped_alone), reach
 
 
 
@@ -666,7 +672,7 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
     if len(c) == 0:
         return c, np.zeros(0, bool)
     reach = dot_reach(img, c, radii, dark) if reach is None else reach
-    start = refine_moments(img, c, radii, dark=dark, reach=reach, columns=columns)
+    start = refine_moments(img, c, radii, dark=dark, reach=reach, columns=columns, clipped_alone=True)
     half = int(np.ceil(reach + 2))
     p, base = gather_patches(img, start, half)
     p = p.astype(np.float64)
@@ -740,13 +746,13 @@ def _streak_gain(img: np.ndarray, p: np.ndarray, start: np.ndarray, reach: float
     measured on saturated pixels, along a streak (:data:`CLIPPED_SHARE`: its gain, and what its saturated pixels
     bound, unknown), else 1; ``sat``: :func:`saturation`."""
     half = p.shape[1] // 2
-    flat = flatten(img, start, reach + 1, dark, columns=free)
+    flat = flatten(img, start, reach + 1, dark, columns=free, clipped_alone=True)
     k = flat.ox.shape[0] // 2 - half
-    col = flat.column[:, k:k + 2 * half + 1]
     level = np.maximum(flat.coef[:, 0], 1.0)[:, None]
     big, _ = gather_patches(img, start, flat.ox.shape[0] // 2)
     full = big >= sat
     outside = np.hypot(flat.ox, flat.oy) > reach + 1
+    col = flat.column[:, k:k + 2 * half + 1]
     clipped = np.ones(big.shape[::2], bool)                                                    # (n, S')
     for side in (outside & (flat.oy < 0), outside & (flat.oy > 0)):   # saturated along it, above and below the dot
         clipped &= (full & side).sum(axis=1) >= CLIPPED_SHARE * np.maximum(side.sum(axis=0), 1)
