@@ -114,9 +114,10 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
     column, chi, rho = None, None, None
     if columns is not None:   # the columns are measured on a strip as wide as the whole patch
-        column, chi, rho = strip_columns(img, base, half, coef, columns, ring.sum(axis=0), saturation(img))
+        sat = saturation(img)
+        column, chi, rho = strip_columns(img, base, half, coef, columns, ring.sum(axis=0), sat)
         if clipped_alone:
-            column = _clipped_patches_alone(column, p, _plane(coef, ox[None], oy[None]), d > ring_in, saturation(img))
+            column = _clipped_patches_alone(column, p, _plane(coef, ox[None], oy[None]), d > ring_in, sat)
         light = dark | (np.abs(column).max(axis=1) <= STREAK_DEPTH * np.maximum(coef[:, 0], 1.0))
         column[(chi <= STREAKINESS) | (rho <= COHERENCE) | ~light] = 0.0
     if crop is not None and crop < half:
@@ -165,11 +166,16 @@ def _plane(coef: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
     return coef[:, 0].reshape(shape) + coef[:, 1].reshape(shape) * dx + coef[:, 2].reshape(shape) * dy
 
 
+def _radial_profile(flat: Flat) -> np.ndarray:
+    """The dots' mean flat-fielded contrast at each whole-pixel distance from the patches' centres."""
+    d = np.rint(np.hypot(flat.ox, flat.oy)).astype(int).ravel()
+    return np.bincount(d, weights=flat.contrast.mean(axis=0).ravel()) / np.maximum(np.bincount(d), 1)
+
+
 def profile_radius(flat: Flat, radius: float) -> float:
     """Radius [px] where the mean radial contrast profile of the dots falls to 2 % of its peak: the dot and
     its defocus blur."""
-    d = np.rint(np.hypot(flat.ox, flat.oy)).astype(int).ravel()
-    prof = np.bincount(d, weights=flat.contrast.mean(axis=0).ravel()) / np.maximum(np.bincount(d), 1)
+    prof = _radial_profile(flat)
     peak = prof[: max(int(radius), 1)].max()
     beyond = np.flatnonzero((np.arange(len(prof)) > radius) & (prof < 0.02 * peak))
     return float(beyond[0]) if len(beyond) else 1.5 * radius
@@ -708,10 +714,8 @@ def _profile_outline(img: np.ndarray, centres: np.ndarray, reach: float, dark: b
     read on the reduced, smoothed image, made the PIV rig's dots 11.2 px for 8.9, and a fit started so sharp and large
     left 29 of 441 dots 0.1-0.7 px off."""
     sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 16)).astype(int)]
-    flat = flatten(img, sample, reach + 1, dark)
-    d = np.rint(np.hypot(flat.ox, flat.oy)).astype(int).ravel()
-    prof = np.bincount(d, weights=flat.contrast.mean(axis=0).ravel()) / np.maximum(np.bincount(d), 1)
-    prof = prof[: int(reach) + 1] / max(float(prof[: max(int(reach) // 2, 1)].max()), 1e-12)
+    prof = _radial_profile(flatten(img, sample, reach + 1, dark))[: int(reach) + 1]
+    prof = prof / max(float(prof[: max(int(reach) // 2, 1)].max()), 1e-12)
     def crossing(level):   # the first radius where the profile falls below level, linearly between pixels
         k = np.flatnonzero(prof < level)
         if len(k) == 0 or k[0] == 0:
