@@ -297,8 +297,29 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     if two_level:   # a parallax near a quarter pitch also fits a basis sheared by half a cell: the least sheared
         cos = np.abs(_cos(u[best] + v[best], u[best] - v[best]))
         best = best[cos <= cos.min() + 0.1]
-    k = best[np.argmin(np.hypot(*(xy[idx[best]] - np.median(xy[idx[best]], axis=0)).T))]
-    return _Seed(int(idx[k]), u[k], v[k], p[k])
+    seeds = [_Seed(int(idx[k]), u[k], v[k], p[k]) for k in best]
+    if two_level:   # one level alone is a lattice with eight neighbours too: the seeds holding the most around
+        seeds = _most_held(xy, area, seeds)
+    centre = np.median([xy[s.k] for s in seeds], axis=0)
+    return min(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))
+
+
+#: on a two-level plate, seeds whose lattices hold within this share of the best share of the candidates around
+#: them are equally good (:func:`_most_held`)
+HELD_SLACK = 0.1
+
+
+def _most_held(xy: np.ndarray, area: np.ndarray, seeds: list, tries: int = 32) -> list:
+    """Of equally supported two-level ``seeds``, those (among the ``tries`` nearest their median position) whose
+    lattices hold the largest share of the candidates around them (:func:`_held`, within :data:`HELD_SLACK`).
+    Where a few dots near the middle are lost, a node can lack the other level's four nearest dots and take a
+    lattice of its own level alone, whose steps are the plate's axes: it has all eight neighbours too, but holds
+    only half of the dots around it (stereo-dic:34: 348 of 697 dots, the other level all taken for blobs in
+    holes)."""
+    centre = np.median([xy[s.k] for s in seeds], axis=0)
+    seeds = sorted(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))[:tries]
+    share = np.array([h / max(a, 1) for h, a in (_held(xy, area, s) for s in seeds)])
+    return [s for s, f in zip(seeds, share) if f >= share.max() - HELD_SLACK]
 
 
 #: a seed's lattice is counted within this many steps of it (:func:`_held`), where its affine steps still hold
@@ -754,7 +775,9 @@ def origin_frame(pl: PlateLattice, markers: list):
       their holes (at most half as far as the next: two blobs span a cell from a dot of either level); where
       triangles and squares were read, they alone, and one pair of them only (a square read in a glare far
       from the plate's origin does not hide the pair that spans its cell); where only one of the two shapes was
-      read, the blobs stand for the other, as above;
+      read, or no pair of those read spans a cell (stereo-dic:32 under everything together: a dim dot beyond the
+      lattice at the image's top read as a square, the plate's square read as a blob), the blobs stand in, as
+      above;
     * a **frame** around a dot: that dot is the origin, ``+x`` along the image's ``w1`` and ``+y`` against
       ``w2`` (up in the image).
     """
@@ -764,21 +787,17 @@ def origin_frame(pl: PlateLattice, markers: list):
     blobs = kinds.get("blob", []) if pl.two_level else []
     triangles, squares = kinds.get("triangle", []), kinds.get("square", [])
     shapes = bool(triangles) and bool(squares)
-    xs, ys = (triangles, squares) if shapes else (triangles + blobs, squares + blobs)   # read shapes: they alone
-    if xs and ys:
-        found = [(int(t.kind == "triangle") + int(s.kind == "square"), *cell) for t in xs for s in ys
-                 if t is not s and (cell := _cell_frame(pl, t, s)) is not None]
-        most = max((n for n, _, _ in found), default=0)
-        best = sorted(((off, frame) for n, off, frame in found if n == most), key=lambda f: f[0])
-        if len(best) == 1 or (not shapes and len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
-            return best[0][1]
-        if shapes:
-            return None, (f"{len(best) or 'no'} pair(s) of the square(s) and triangle(s) found span one lattice "
-                          "cell" if len(triangles) + len(squares) > 2 else
-                          "a square and a triangle marker were found but do not span one lattice cell")
-        if best:
-            return None, (f"{len(best)} pairs of the markers found span a lattice cell, their markers as near "
-                          "their holes: which is the plate's is not told")
+    if shapes:   # read shapes: they alone; where no pair of them spans a cell, the blobs may stand for one
+        frame, why = _marker_pair(pl, triangles, squares, blobs=False)
+        if frame is None and not why and blobs:
+            frame, why = _marker_pair(pl, triangles + blobs, squares + blobs, blobs=True)
+        return frame, why or ("no pair of the square(s) and triangle(s) found spans one lattice cell"
+                              if len(triangles) + len(squares) > 2 else
+                              "a square and a triangle marker were found but do not span one lattice cell")
+    if (triangles + blobs) and (squares + blobs):
+        frame, why = _marker_pair(pl, triangles + blobs, squares + blobs, blobs=True)
+        if frame is not None or why:
+            return frame, why
     frames = kinds.get("frame", [])
     if len(frames) == 1:
         n = np.rint(pl.locate(frames[0].centre)).astype(int)
@@ -787,6 +806,24 @@ def origin_frame(pl: PlateLattice, markers: list):
         found = ", ".join(f"{len(v)} {k}" for k, v in kinds.items())
         return None, f"markers found ({found}) but not a square and a triangle, nor one frame"
     return None, "no markers found"
+
+
+def _marker_pair(pl: PlateLattice, xs: list, ys: list, *, blobs: bool):
+    """``(frame, how)``: the origin frame of the one pair of markers from ``xs`` (``+x``) and ``ys`` (``+y``) that
+    spans a lattice cell (:func:`origin_frame`), or ``(None, why)`` where several do, or ``(None, "")`` where none
+    does. With ``blobs`` among them, of the pairs reading the most shapes the one whose markers lie nearest their
+    holes, at most half as far as the next."""
+    found = [(int(t.kind == "triangle") + int(s.kind == "square"), *cell) for t in xs for s in ys
+             if t is not s and (cell := _cell_frame(pl, t, s)) is not None]
+    most = max((n for n, _, _ in found), default=0)
+    best = sorted(((off, frame) for n, off, frame in found if n == most), key=lambda f: f[0])
+    if len(best) == 1 or (blobs and len(best) > 1 and best[0][0] < 0.5 * best[1][0]):
+        return best[0][1]
+    if not best:
+        return None, ""
+    return None, (f"{len(best)} pairs of the markers found span a lattice cell, their markers as near their "
+                  "holes: which is the plate's is not told" if blobs else
+                  f"{len(best)} pair(s) of the square(s) and triangle(s) found span one lattice cell")
 
 
 def _cell_frame(pl: PlateLattice, triangle, square):
