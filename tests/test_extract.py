@@ -186,7 +186,9 @@ def test_window_streaks_do_not_hide_the_dots():
     """Streaks narrower than the contrast mesh's cells are the background's columns, not noise: every dot is
     found under them (a median per cell alone found 18 of the 49, and no lattice: the streaks' spread drowned
     the dots). Their centres under streaks are :mod:`slmlab.images.centres`' concern: here a few dots crossed by
-    a streak much narrower than themselves still leave the lattice after refinement."""
+    a streak much narrower than themselves still leave the lattice after refinement (41 of 49 are kept, 0.077 px
+    RMS; with every column something sat on one side of left in the streaks' lines, 43 at 0.098 px, the two more
+    0.56 and 0.17 px off)."""
     from slmlab.images.dots import dot_polarity, local_contrast, sweep
     m = slmlab.preset("paper")
     img, truth = render_plate(m, m.moving_plate, (0.1, -0.2, 0.0), seed=8)
@@ -196,9 +198,10 @@ def test_window_streaks_do_not_hide_the_dots():
     d = np.min(np.hypot(*(found[None, :, :] - truth[["w1", "w2"]].to_numpy()[:, None, :]).transpose(2, 0, 1)), axis=1)
     assert (d < 3).mean() >= 0.99, f"{(d < 3).sum()} of {len(d)} dots among the sweep's candidates"
     dots = extract_image(img, 7, 7)   # numbered right; a few dots crossed by a streak narrower than them are
-    merged = dots.table.merge(truth, on=["row", "col"])   # dropped off the lattice after refinement (43 of 49)
-    assert len(merged) == len(dots.table) >= 0.85 * len(truth), dots.note
-    assert np.hypot(merged["w1_x"] - merged["w1_y"], merged["w2_x"] - merged["w2_y"]).max() < 1.0
+    merged = dots.table.merge(truth, on=["row", "col"])   # dropped off the lattice after refinement
+    assert len(merged) == len(dots.table) >= 0.8 * len(truth), dots.note
+    err = np.hypot(merged["w1_x"] - merged["w1_y"], merged["w2_x"] - merged["w2_y"])
+    assert err.max() < 1.0 and np.sqrt(np.mean(err ** 2) / 2) < 0.09, (err.max(), np.sqrt(np.mean(err ** 2) / 2))
 
 
 def test_faint_dots_beside_a_camera_s_black_strip_are_seen_at_two_levels():
@@ -396,6 +399,28 @@ def test_window_streaks_across_bright_dots_are_read_along_strips_and_divided_out
     fit, edges = (_rms(refine(img, start, radii, dark=False, method=m), xy) for m in ("fit", "edges"))
     assert fit < 0.035 and fit < 0.5 * _rms(refine_fit(img, start, radii, dark=False, reach=reach), xy)
     assert edges < _rms(refine_edges(img, start, radii, dark=False, reach=reach), xy)
+
+
+@pytest.mark.parametrize("seed, dot", [(0, 24), (2, 32), (3, 24)])
+def test_a_glint_beside_a_dot_is_not_taken_for_a_window_streak(seed, dot):
+    """A glint (a saturated spot, radius 4 px) 28 px below or above a dot of a streaked plate: clear of its patch,
+    on one side of its strip. Its columns were taken for a clipped band, hundreds of grey levels deep, and their
+    weight tilted every column's line, so the dot kept no streak: the edges and the point of symmetry moved
+    0.035-0.055 px, the model fit 0.03-0.43. Once such columns are left out they take their neighbours' offsets,
+    and the streak's fine structure under the glint is lost (the fit 0.04 px off). A clipped band runs above and
+    below the dot, the line is fitted again without the columns left out, and a column with something on one side
+    is read on the other: the edges and the point of symmetry within 0.01 px of where they were without the glint,
+    the fit within 0.04 (0.034 with the glint above the first dot, where it covers half of the strip's free rows)."""
+    from slmlab.images.centres import refine
+    xy, img = _bright_streaked_plate(seed)
+    radii, start = np.full(len(xy), 9.0), xy + 0.4
+    clean = {m: refine(img, start, radii, dark=False, method=m)[dot] for m in ("edges", "symmetry", "fit")}
+    for dy in (28, -28):
+        glint = img.copy()
+        cv2.circle(glint, (int(round(xy[dot, 0] + 3)), int(round(xy[dot, 1] + dy))), 4, 255, -1)
+        for method, limit in (("edges", 0.01), ("symmetry", 0.01), ("fit", 0.04)):
+            moved = np.hypot(*(refine(glint, start, radii, dark=False, method=method)[dot] - clean[method]))
+            assert moved < limit, (method, dy, moved)
 
 
 @pytest.mark.parametrize("blur", [2.0, 3.5])

@@ -131,13 +131,16 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
 def _clipped_patches_alone(column: np.ndarray, p: np.ndarray, plane: np.ndarray, outside: np.ndarray, sat: float
                            ) -> np.ndarray:
     """The columns' offsets ``(n, S)``, those of a dot whose patch ``p`` ``(n, S, S)`` saturates outside it
-    (``outside`` ``(S, S)``) read on the patch alone: the mean of each column's pixels there less the ``plane``. A
+    (``outside`` ``(S, S)``) in a column above and below it (a saturating streak; not a spot on one side) read on the
+    patch alone: the mean of each column's pixels there less the ``plane``. A
     streak that saturates fades along the column, so a strip clips over other rows than the patch; read on the
     strip, the model fit put dots half under a saturating band 0.25 px off (0.03 on the patch), and read on the
     strip less a line without the clipped columns, it lost a dot beside one on greenough:10. For the model fit alone
     (its moments start and :func:`_streak_gain`): the other estimators, so read, took greenough's window streaks
     from 0.007 px to 0.021."""
-    clipped = ((p >= sat) & outside[None]).any(axis=(1, 2))
+    at = (p >= sat) & outside[None]
+    rows = np.arange(p.shape[1]) - p.shape[1] // 2
+    clipped = (at[:, rows < 0].any(axis=1) & at[:, rows > 0].any(axis=1)).any(axis=1)   # a column, above and below
     if not clipped.any():
         return column
     out = outside[None] & np.ones(p[clipped].shape, bool)

@@ -53,18 +53,20 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     of the offsets over their noise variance (from the difference above less below, which a streak leaves out,
     and at least a grey level's: about 1 without streaks) and the correlation of the offsets above with those
     below (a streak runs through both; texture and noise do not)."""
-    (up, k_up), (down, k_down), clipped = _strip_levels(img, base, half, coef, free, sat)
-    ok = (k_up >= 4) & (k_down >= 4)
-    weight = ring * ok
-    up, down = (_less_line(np.where(ok, v, 0.0), np.arange(-half, half + 1), weight) for v in (up, down))
-    d = up - down
-    centre = midmean(d, ok, 1)[0][:, None]
+    (up0, k_up), (down0, k_down), clipped = _strip_levels(img, base, half, coef, free, sat)
+    seen = (k_up >= 4) & (k_down >= 4)
+    ok, x = seen.copy(), np.arange(-half, half + 1)
     quantum = np.sqrt(2 / 12 / np.maximum(masked_median(np.minimum(k_up, k_down), ok, 1), 1))   # 1 grey level
-    spread = np.maximum(1.4826 * masked_median(np.abs(d - centre), ok & ~clipped, 1), quantum)
-    ok &= clipped | (np.abs(d - centre) <= STRIP_APART * spread[:, None])
-    up, down = np.where(ok, up, 0.0), np.where(ok, down, 0.0)
-    column = _filled(0.5 * (up + down), ok)
+    for _ in range(2):   # again without the columns left out: an object on one side tilted every column's line
+        up, down = (v - _line(np.where(ok, v, 0.0), x, ring * ok) for v in (up0, down0))
+        d = up - down
+        centre = midmean(d, ok, 1)[0][:, None]
+        spread = np.maximum(1.4826 * masked_median(np.abs(d - centre), ok & ~clipped, 1), quantum)
+        ok &= clipped | (np.abs(d - centre) <= STRIP_APART * spread[:, None])
+    column = _filled(np.where(ok, 0.5 * (up + down), 0.0), ok)
+    column = np.where(seen & ~ok, _one_side(up - 0.5 * centre, down + 0.5 * centre, column), column)
     chi = (np.where(ok, column, 0.0) ** 2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1) / (0.25 * spread ** 2)
+    up, down = np.where(ok, up, 0.0), np.where(ok, down, 0.0)
     up, down = (np.where(ok, v - v.sum(axis=1, keepdims=True) / np.maximum(ok.sum(axis=1, keepdims=True), 1), 0.0)
                 for v in (up, down))
     rho = (up * down).sum(axis=1) / np.sqrt((up * up).sum(axis=1) * (down * down).sum(axis=1) + 1e-12)
@@ -77,7 +79,9 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     patch (``S = 2·half + 1``) and :data:`STRIP_HALVES` times ``half`` above and below it, on the pixels ``free`` of
     every dot (:func:`clear_of_dots`): each pixel less the plane ``coef``, each row less its level (the background's
     curve along the column), then the columns' :func:`slmlab.images.robust.midmean`; and which columns hold a
-    pixel at ``sat`` (saturated)."""
+    pixel at ``sat`` (saturated) above the dot and below it (a saturated spot on one side is something else: taken
+    for a clipped band, its columns' offsets of hundreds of grey levels left the dot no streak at all, 0.015 to
+    0.043 px)."""
     h, w = img.shape
     reach = STRIP_HALVES * half
     oy, ox = np.arange(-reach, reach + 1), np.arange(-half, half + 1)
@@ -85,7 +89,8 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     yc, xc = np.clip(ys, 0, h - 1)[:, :, None], np.clip(xs, 0, w - 1)[:, None, :]
     values = img[yc, xc]
     use = free[yc, xc] & (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
-    clipped = (use & (values >= sat)).any(axis=1)                           # (n, S)
+    sat_at = use & (values >= sat)
+    clipped = sat_at[:, oy < 0].any(axis=1) & sat_at[:, oy > 0].any(axis=1)   # (n, S): a clipped band runs through
     res = values.astype(np.float32) - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox[None, None, :]
                                        + coef[:, 2, None, None] * oy[None, :, None]).astype(np.float32)
     res -= midmean(res, use, 2)[0][:, :, None].astype(np.float32)
@@ -105,9 +110,17 @@ def _filled(column: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def _less_line(v: np.ndarray, x: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """``v`` ``(n, S)`` less its weighted least-squares line in ``x`` ``(S,)`` (weights ``(n, S)``)."""
+def _line(v: np.ndarray, x: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The weighted least-squares line ``(n, S)`` in ``x`` ``(S,)`` of ``v`` ``(n, S)`` (weights ``(n, S)``)."""
     design = np.stack([np.ones(len(x)), np.asarray(x, np.float64)])                        # (2, S)
     normal = np.einsum("ks,ns,ls->nkl", design, weight, design) + 1e-9 * np.eye(2)
     beta = np.linalg.solve(normal, np.einsum("ks,ns->nk", design, weight * v)[..., None])[..., 0]
-    return v - beta @ design
+    return beta @ design
+
+
+def _one_side(up: np.ndarray, down: np.ndarray, filled: np.ndarray) -> np.ndarray:
+    """A column's offset read on one side of the dot, where something else sits on the other: of its level above
+    ``up`` and below ``down`` (each ``(n, S)``, less half the columns' usual difference), the one nearer ``filled``,
+    its neighbours' (:func:`_filled`). A streak's fine structure under a glint beside the dot is kept: filled in
+    from its neighbours over the glint's nine columns, a bright dot's model fit moved 0.04 px."""
+    return np.where(np.abs(up - filled) <= np.abs(down - filled), up, down)
