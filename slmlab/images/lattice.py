@@ -298,7 +298,8 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
         cos = np.abs(_cos(u[best] + v[best], u[best] - v[best]))
         best = best[cos <= cos.min() + 0.1]
     seeds = [_Seed(int(idx[k]), u[k], v[k], p[k]) for k in best]
-    if two_level:   # one level alone is a lattice with eight neighbours too: the seeds holding the most around
+    step = np.array([min(np.hypot(*s.u), np.hypot(*s.v)) for s in seeds])
+    if two_level and step.max() > 1.2 * step.min():   # one level alone, steps √2 longer, has eight neighbours too
         seeds = _most_held(xy, area, seeds)
     centre = np.median([xy[s.k] for s in seeds], axis=0)
     return min(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))
@@ -315,10 +316,11 @@ def _most_held(xy: np.ndarray, area: np.ndarray, seeds: list, tries: int = 32) -
     Where a few dots near the middle are lost, a node can lack the other level's four nearest dots and take a
     lattice of its own level alone, whose steps are the plate's axes: it has all eight neighbours too, but holds
     only half of the dots around it (stereo-dic:34: 348 of 697 dots, the other level all taken for blobs in
-    holes)."""
+    holes). Weighed only where the seeds' steps differ by more than a fifth (such a lattice's are √2 longer)."""
     centre = np.median([xy[s.k] for s in seeds], axis=0)
     seeds = sorted(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))[:tries]
-    share = np.array([h / max(a, 1) for h, a in (_held(xy, area, s) for s in seeds)])
+    held, around = _held_many(xy, area, seeds)
+    share = held / np.maximum(around, 1)
     return [s for s, f in zip(seeds, share) if f >= share.max() - HELD_SLACK]
 
 
@@ -358,19 +360,27 @@ def _held(xy: np.ndarray, area: np.ndarray, s: _Seed, reach: int = SEED_REACH) -
     """``(held, around)``: how many candidates with an area within a factor 2 of seed ``s``'s lie on its lattice
     (within 0.2 of a step of a node, the odd nodes offset by ``s.p``), and how many lie around it, within
     ``reach`` steps of it (where its affine steps hold)."""
-    basis = np.column_stack([s.u, s.v])
-    if abs(np.linalg.det(basis)) < 1e-9:
-        return 0, 0
-    step = min(np.hypot(*s.u), np.hypot(*s.v))
-    similar = (area > area[s.k] / 2) & (area < 2 * area[s.k])
-    held, around = np.zeros(len(xy), bool), np.zeros(len(xy), bool)
-    for parity, offset in ((0, np.zeros(2)), (1, s.p)):
-        q = np.linalg.solve(basis, (xy - xy[s.k] - offset).T).T
+    held, around = _held_many(xy, area, [s], reach)
+    return int(held[0]), int(around[0])
+
+
+def _held_many(xy: np.ndarray, area: np.ndarray, seeds: list, reach: int = SEED_REACH) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_held` of each of ``seeds`` ``(m,)``, all at once."""
+    basis = np.stack([np.column_stack([s.u, s.v]) for s in seeds])                           # (m, 2, 2)
+    flat = np.abs(np.linalg.det(basis)) < 1e-9
+    inverse = np.linalg.inv(np.where(flat[:, None, None], np.eye(2), basis))
+    k = np.array([s.k for s in seeds])
+    step = np.array([min(np.hypot(*s.u), np.hypot(*s.v)) for s in seeds])[:, None]
+    similar = (area[None] > area[k, None] / 2) & (area[None] < 2 * area[k, None])               # (m, n)
+    held, around = np.zeros(similar.shape, bool), np.zeros(similar.shape, bool)
+    for parity, offset in ((0, np.zeros((len(seeds), 2))), (1, np.array([s.p for s in seeds]))):
+        q = np.einsum("mij,mnj->mni", inverse, xy[None] - (xy[k] + offset)[:, None])             # (m, n, 2)
         node = np.rint(q)
-        near = np.abs(node).max(axis=1) <= reach
+        near = np.abs(node).max(axis=2) <= reach
         around |= near
-        held |= near & (np.hypot(*((q - node) @ basis.T).T) < 0.2 * step) & (np.abs(node.sum(axis=1)) % 2 == parity)
-    return int((held & similar).sum()), int((around & similar).sum())
+        miss = np.einsum("mij,mnj->mni", basis, q - node)
+        held |= near & (np.hypot(miss[..., 0], miss[..., 1]) < 0.2 * step) & (np.abs(node.sum(axis=2)) % 2 == parity)
+    return np.where(flat, 0, (held & similar).sum(axis=1)), np.where(flat, 0, (around & similar).sum(axis=1))
 
 
 def _support(xy: np.ndarray, area: np.ndarray, s: _Seed) -> int:

@@ -40,12 +40,10 @@ def midmean(v: np.ndarray, use: np.ndarray, axis: int) -> tuple[np.ndarray, np.n
     robust as a quartile to a few other objects, and unlike the median not a grey level of a quantised image."""
     k = use.sum(axis=axis)
     s = np.sort(np.where(use, v, np.inf), axis=axis)
-    total = np.cumsum(np.where(np.isfinite(s), s, 0.0), axis=axis, dtype=np.float64)
     lo, hi = np.expand_dims(k // 4, axis), np.expand_dims(k - k // 4, axis)
-    def below(t):   # the sum of the t smallest
-        return np.where(t > 0, np.take_along_axis(total, np.maximum(t - 1, 0), axis=axis), 0.0)
-    mean = (below(hi) - below(lo)) / np.maximum(hi - lo, 1)
-    return np.where(k > 0, mean.squeeze(axis), 0.0), k
+    rank = np.arange(s.shape[axis]).reshape([-1 if a == axis % s.ndim else 1 for a in range(s.ndim)])
+    middle = np.where((rank >= lo) & (rank < hi), s, 0.0).sum(axis=axis, dtype=np.float64)
+    return np.where(k > 0, middle / np.maximum(hi - lo, 1).squeeze(axis), 0.0), k
 
 
 def masked_median(v: np.ndarray, use: np.ndarray, axis: int) -> np.ndarray:

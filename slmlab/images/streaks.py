@@ -88,13 +88,16 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     ys, xs = base[:, 1, None] + oy, base[:, 0, None] + ox
     yc, xc = np.clip(ys, 0, h - 1)[:, :, None], np.clip(xs, 0, w - 1)[:, None, :]
     values = img[yc, xc]
-    use = free[yc, xc] & (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
+    use = free[yc, xc]
+    if (ys < 0).any() or (ys >= h).any() or (xs < 0).any() or (xs >= w).any():   # a strip beyond the image
+        use &= (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
     sat_at = use & (values >= sat)
     clipped = sat_at[:, oy < 0].any(axis=1) & sat_at[:, oy > 0].any(axis=1)   # (n, S): a clipped band runs through
     res = values.astype(np.float32) - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox[None, None, :]
                                        + coef[:, 2, None, None] * oy[None, :, None]).astype(np.float32)
     res -= midmean(res, use, 2)[0][:, :, None].astype(np.float32)
-    up, down = (midmean(res[:, side], use[:, side], 1) for side in (oy < 0, oy > 0))
+    res, use = np.ascontiguousarray(res.transpose(0, 2, 1)), np.ascontiguousarray(use.transpose(0, 2, 1))
+    up, down = (midmean(res[:, :, side], use[:, :, side], 2) for side in (oy < 0, oy > 0))
     return up, down, clipped
 
 
