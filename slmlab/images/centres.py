@@ -42,7 +42,7 @@ from scipy.spatial import cKDTree
 from scipy.special import erfc
 
 from .dots import as_float, gather_patches
-from .streaks import clear_of_dots, strip_columns
+from .streaks import clear_of_dots, clipped_band, strip_columns
 
 __all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
@@ -143,9 +143,7 @@ def _clipped_patches_alone(column: np.ndarray, p: np.ndarray, plane: np.ndarray,
     strip less a line without the clipped columns, it lost a dot beside one on greenough:10. For the model fit alone
     (its moments start and :func:`_streak_gain`): the other estimators, so read, took greenough's window streaks
     from 0.007 px to 0.021."""
-    at = (p >= sat) & outside[None]
-    rows = np.arange(p.shape[1]) - p.shape[1] // 2
-    clipped = (at[:, rows < 0].any(axis=1) & at[:, rows > 0].any(axis=1)).any(axis=1)   # a column, above and below
+    clipped = clipped_band((p >= sat) & outside[None], np.arange(p.shape[1]) - p.shape[1] // 2).any(axis=1)
     if not clipped.any():
         return column
     out = outside[None] & np.ones(p[clipped].shape, bool)

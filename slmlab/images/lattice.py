@@ -258,7 +258,8 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     three times longer: views down to 20° from the plate; :func:`_central_steps`; on a two-level plate the
     shortest of :func:`_paired_steps`' hypotheses with six, as a lattice of every other node of the plate's
     has eight; of equally supported seeds those whose plate axes ``u ± v`` are the least sheared, within 0.1
-    in cosine: at a parallax near a quarter pitch a basis sheared by half a cell fits too); among equally supported
+    in cosine: at a parallax near a quarter pitch a basis sheared by half a cell fits too, and on a two-level plate
+    those holding the most of the candidates around them, :func:`_most_held`); among equally supported
     seeds the one nearest their median position. Tried on the ``tries`` candidates nearest the median
     position (a plate's inner dots); ``None`` if none has six."""
     n = len(xy)
@@ -301,8 +302,13 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     step = np.array([min(np.hypot(*s.u), np.hypot(*s.v)) for s in seeds])
     if two_level and step.max() > 1.2 * step.min():   # one level alone, steps √2 longer, has eight neighbours too
         seeds = _most_held(xy, area, seeds)
+    return _by_middle(xy, seeds)[0]
+
+
+def _by_middle(xy: np.ndarray, seeds: list) -> list:
+    """``seeds`` ordered by their candidate's distance from their median position (the plate's inner dots first)."""
     centre = np.median([xy[s.k] for s in seeds], axis=0)
-    return min(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))
+    return sorted(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))
 
 
 #: on a two-level plate, seeds whose lattices hold within this share of the best share of the candidates around
@@ -317,8 +323,7 @@ def _most_held(xy: np.ndarray, area: np.ndarray, seeds: list, tries: int = 32) -
     lattice of its own level alone, whose steps are the plate's axes: it has all eight neighbours too, but holds
     only half of the dots around it (stereo-dic:34: 348 of 697 dots, the other level all taken for blobs in
     holes). Weighed only where the seeds' steps differ by more than a fifth (such a lattice's are √2 longer)."""
-    centre = np.median([xy[s.k] for s in seeds], axis=0)
-    seeds = sorted(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))[:tries]
+    seeds = _by_middle(xy, seeds)[:tries]
     held, around = _held_many(xy, area, seeds)
     share = held / np.maximum(around, 1)
     return [s for s, f in zip(seeds, share) if f >= share.max() - HELD_SLACK]
@@ -366,6 +371,8 @@ def _held(xy: np.ndarray, area: np.ndarray, s: _Seed, reach: int = SEED_REACH) -
 
 def _held_many(xy: np.ndarray, area: np.ndarray, seeds: list, reach: int = SEED_REACH) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_held` of each of ``seeds`` ``(m,)``, all at once."""
+    if not seeds:
+        return np.zeros(0, int), np.zeros(0, int)
     basis = np.stack([np.column_stack([s.u, s.v]) for s in seeds])                           # (m, 2, 2)
     flat = np.abs(np.linalg.det(basis)) < 1e-9
     inverse = np.linalg.inv(np.where(flat[:, None, None], np.eye(2), basis))

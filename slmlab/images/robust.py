@@ -37,7 +37,8 @@ def robust_sigma(values: np.ndarray) -> float:
 
 def midmean(v: np.ndarray, use: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     """The mean of the middle half of ``v``'s values over ``axis`` where ``use`` (0 where none), and how many: as
-    robust as a quartile to a few other objects, and unlike the median not a grey level of a quantised image."""
+    robust as a quartile to a few other objects, and unlike the median not a grey level of a quantised image
+    (``v`` finite where ``use``)."""
     k = use.sum(axis=axis)
     s = np.sort(np.where(use, v, np.inf), axis=axis)
     lo, hi = np.expand_dims(k // 4, axis), np.expand_dims(k - k // 4, axis)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .robust import masked_median, midmean
 
-__all__ = ["STRIP_HALVES", "STRIP_APART", "clear_of_dots", "strip_columns"]
+__all__ = ["STRIP_HALVES", "STRIP_APART", "clear_of_dots", "strip_columns", "clipped_band"]
 
 #: a dot's columns are read on a strip this many times its patch's half side above and below it
 #: (:func:`strip_columns`; the patch alone, a few pixels per column beside the dot, lost streaks of 10 grey levels
@@ -46,10 +46,12 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     plane took in the streaks' mean and slope there, and a row's level the streaks' share of it). A patch alone
     holds a few pixels per column beside its dot (at 8 grey levels of noise a streak of 10 went unread). A column
     whose two levels differ by more than :data:`STRIP_APART` times the columns' spread of that difference holds
-    something else on one side (a marker, another dot); it and a column masked to a few pixels take their
-    neighbours' offsets (:func:`_filled`); a column with pixels at ``sat``
-    (saturated) is read as it is (its offset at least what it shows) and left out of that spread (a clipped band's
-    columns, equal above and below, made it nil and every other column an outlier). Per patch also the mean square
+    something else on one side (a marker, another dot, a glint); the lines are fitted again without such columns
+    (their weight tilted every other column's), and the columns then left out are judged again and read on their
+    other side (:func:`_one_side`); a column masked to a few pixels takes its neighbours' offset (:func:`_filled`);
+    a column saturated above the dot and below it (:func:`clipped_band`) is read as it is (its offset at least what
+    it shows) and left out of that spread (a clipped band's columns, equal above and below, made it nil and every
+    other column an outlier). Per patch also the mean square
     of the offsets over their noise variance (from the difference above less below, which a streak leaves out,
     and at least a grey level's: about 1 without streaks) and the correlation of the offsets above with those
     below (a streak runs through both; texture and noise do not)."""
@@ -91,14 +93,20 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     use = free[yc, xc]
     if (ys < 0).any() or (ys >= h).any() or (xs < 0).any() or (xs >= w).any():   # a strip beyond the image
         use &= (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
-    sat_at = use & (values >= sat)
-    clipped = sat_at[:, oy < 0].any(axis=1) & sat_at[:, oy > 0].any(axis=1)   # (n, S): a clipped band runs through
+    clipped = clipped_band(use & (values >= sat), oy)
     res = values.astype(np.float32) - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox[None, None, :]
                                        + coef[:, 2, None, None] * oy[None, :, None]).astype(np.float32)
     res -= midmean(res, use, 2)[0][:, :, None].astype(np.float32)
     res, use = np.ascontiguousarray(res.transpose(0, 2, 1)), np.ascontiguousarray(use.transpose(0, 2, 1))
     up, down = (midmean(res[:, :, side], use[:, :, side], 2) for side in (oy < 0, oy > 0))
     return up, down, clipped
+
+
+def clipped_band(saturated: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Which columns ``(n, S)`` of patches or strips ``saturated`` ``(n, R, S)`` (their saturated pixels, at ``rows``
+    ``(R,)`` [px] from the dot) saturate above the dot and below it: a clipped band runs through it; a glint on
+    one side is something else."""
+    return saturated[:, rows < 0].any(axis=1) & saturated[:, rows > 0].any(axis=1)
 
 
 def _filled(column: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -123,7 +131,8 @@ def _line(v: np.ndarray, x: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 def _one_side(up: np.ndarray, down: np.ndarray, filled: np.ndarray) -> np.ndarray:
     """A column's offset read on one side of the dot, where something else sits on the other: of its level above
-    ``up`` and below ``down`` (each ``(n, S)``, less half the columns' usual difference), the one nearer ``filled``,
-    its neighbours' (:func:`_filled`). A streak's fine structure under a glint beside the dot is kept: filled in
-    from its neighbours over the glint's nine columns, a bright dot's model fit moved 0.04 px."""
+    ``up`` and below ``down`` (each ``(n, S)``, brought to their mean by half the columns' usual difference above
+    less below), the one nearer ``filled``, its neighbours' (:func:`_filled`). A streak's fine structure under a
+    glint beside the dot is kept: filled in from its neighbours over the glint's nine columns, a bright dot's model
+    fit moved 0.07-0.14 px."""
     return np.where(np.abs(up - filled) <= np.abs(down - filled), up, down)
