@@ -875,8 +875,8 @@ def streak_mask(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: b
     [px]), bright dots by at least :data:`STREAK_EFFECT` of their contrast; else ``None``."""
     if len(centres) == 0:
         return None
-    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 32)).astype(int)]
     free = clear_of_dots(img.shape, centres, reach)
+    sample = centres[np.linspace(0, len(centres) - 1, min(len(centres), 32)).astype(int)]
     flat = flatten(img, sample, reach + 1, dark, columns=free)
     crossed = flat.column.any(axis=1)
     if not dark:   # an offset too small beside the dot's contrast to move its centre

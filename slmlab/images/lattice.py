@@ -299,7 +299,7 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
         cos = np.abs(_cos(u[best] + v[best], u[best] - v[best]))
         best = best[cos <= cos.min() + 0.1]
     seeds = [_Seed(int(idx[k]), u[k], v[k], p[k]) for k in best]
-    step = np.array([min(np.hypot(*s.u), np.hypot(*s.v)) for s in seeds])
+    step = np.minimum(np.hypot(*u[best].T), np.hypot(*v[best].T))
     if two_level and step.max() > 1.2 * step.min():   # one level alone, steps √2 longer, has eight neighbours too
         seeds = _most_held(xy, area, seeds)
     return _by_middle(xy, seeds)[0]

@@ -81,9 +81,8 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     patch (``S = 2·half + 1``) and :data:`STRIP_HALVES` times ``half`` above and below it, on the pixels ``free`` of
     every dot (:func:`clear_of_dots`): each pixel less the plane ``coef``, each row less its level (the background's
     curve along the column), then the columns' :func:`slmlab.images.robust.midmean`; and which columns hold a
-    pixel at ``sat`` (saturated) above the dot and below it (a saturated spot on one side is something else: taken
-    for a clipped band, its columns' offsets of hundreds of grey levels left the dot no streak at all, 0.015 to
-    0.043 px)."""
+    pixel at ``sat`` (saturated) above the dot and below it (:func:`clipped_band`: a glint on one side, taken for a
+    clipped band, left the dot no streak at all)."""
     h, w = img.shape
     reach = STRIP_HALVES * half
     oy, ox = np.arange(-reach, reach + 1), np.arange(-half, half + 1)
