@@ -662,6 +662,27 @@ def test_the_local_search_finds_dots_beside_a_saturated_streak():
     assert ok.all() and sig.min() >= 10 and np.hypot(*(where - xy[missing]).T).max() < 2, (ok, sig)
 
 
+def test_the_local_search_sees_a_dot_whose_nearest_neighbours_lie_on_the_diagonals():
+    """A two-level plate (a checkerboard of dots, every node of one parity) has its nearest dots on the image's
+    diagonals, which the search patch's corners reach: read as the ring's spread, their light took every dot to
+    under :data:`slmlab.images.dots.SEARCH_SIGMA` (4.9-5.7 σ here; on stereo-piv:41's two-level plate, clean,
+    2-3 σ and 12 of 1 014 plain dots at the plate's corners lost). The ring stops short of the nearest dots."""
+    from slmlab.images.dots import SEARCH_SIGMA, local_contrast, search_missing
+    rng = np.random.default_rng(3)
+    size, step, radius, k = 420, 30, 9.0, 8
+    xy = np.array([(60 + i * step, 60 + j * step) for j in range(11) for i in range(11) if (i + j) % 2 == 0], float)
+    xy += rng.uniform(-0.5, 0.5, xy.shape)
+    cov = np.zeros((size * k, size * k), np.uint8)
+    for x, y in xy:
+        cv2.circle(cov, (int(round((x + 0.5) * k)), int(round((y + 0.5) * k))), int(radius * k), 1, -1)
+    cov = cv2.GaussianBlur(cv2.resize(cov.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA), (0, 0), 1.5)
+    img = np.clip(np.rint(150 * (1 - 0.7 * cov) + rng.normal(0, 2.0, cov.shape)), 0, 255).astype(np.uint8)
+    inner = np.abs(xy - size / 2).max(axis=1) < 120
+    ok, where, sig = search_missing(local_contrast(img, dark=True), xy[inner] + 1.5, np.full(inner.sum(), 9.0),
+                                    xy[~inner], radius, step * np.sqrt(2))
+    assert ok.all() and sig.min() >= 1.2 * SEARCH_SIGMA and np.hypot(*(where - xy[inner]).T).max() < 2, sig.min()
+
+
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_uncompressed_png_holds_the_same_pixels(tmp_path, dtype):
     from slmlab.virtual.render import write_png

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .overlay import outside_nil, overlay_rows, picture_rows, within
-from .robust import mad
+from .robust import mad, masked_median
 
 __all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
            "STRONG_SHARE", "STRONG_SIGMA",
@@ -671,19 +671,23 @@ def _box_means(p: np.ndarray, k: int) -> np.ndarray:
     return (cs[:, w:, w:] - cs[:, :n, w:] - cs[:, w:, :n] + cs[:, :n, :n]) / w ** 2
 
 
-def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, pitch: float
+def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, spacing
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dot evidence near image points ``at`` ``(m, 2)`` [px], each on its own local background.
 
     Around each point a square reaching a dot's diameter and 4 px beyond the search window, but not to the
-    next dot (so no neighbouring dot is in it), is taken from the reduced, smoothed image; its background
-    (:func:`_less_background`, outside the search window and the dot) is subtracted; the rest is averaged
-    over a box of the dot's size (a matched filter). Returns the filter's highest value within ``tol`` [px] of each
-    point [grey levels], its significance (over the filtered ring's robust spread) and where it is [px]."""
+    next dot along the image's axes (``spacing``: the distance to the nearest dot, ``(m,)`` or one for all
+    [px]), is taken from the reduced, smoothed image; its background (:func:`_less_background`, outside the
+    search window and the dot) is subtracted; the rest is averaged over a box of the dot's size (a matched
+    filter). Returns the filter's highest value within ``tol`` [px] of each point [grey levels], its
+    significance (over the robust spread of the filter on a ring beyond the dot and short of its nearest
+    neighbours: the square's corners reach a lattice's diagonal neighbours, whose light, read as spread, took a
+    two-level plate's plain corner dots on a stereo-PIV rig's oblique view to 2-3 of it) and where it is [px]."""
     r = con.scale
     rd, tr = radius / r, np.asarray(tol, float) / r
+    reach = np.broadcast_to(np.asarray(spacing, float), (len(at),)) / r
     inner = int(np.ceil(rd + 3 + tr.max()))                      # the search window and the dot
-    half = max(min(int(pitch / r - rd - 1), inner + int(np.ceil(rd)) + 4), inner)
+    half = max(min(int(np.median(reach) - rd - 1), inner + int(np.ceil(rd)) + 4), inner)
     p, base = gather_patches(con.signed, con.to_reduced(at), half)
     off = np.arange(-half, half + 1, dtype=np.float32)
     oy, ox = np.meshgrid(off, off, indexing="ij")
@@ -694,10 +698,15 @@ def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, 
     dy, dx = np.meshgrid(o2, o2, indexing="ij")
     pr = con.to_reduced(at)
     ex, ey = (base[:, 0] - pr[:, 0])[:, None, None] + dx, (base[:, 1] - pr[:, 1])[:, None, None] + dy
-    ring2 = np.hypot(dx, dy) > rd + 1 + k
+    d = np.hypot(dx, dy)
+    ring2 = d > rd + 1 + k
     if ring2.sum() < 8:
-        ring2 = np.hypot(dx, dy) >= np.sort(np.hypot(dx, dy).ravel())[-8]
-    spread = 1.4826 * np.median(np.abs(box[:, ring2] - np.median(box[:, ring2], axis=1)[:, None]), axis=1) + 1e-6
+        ring2 = d >= np.sort(d.ravel())[-8]
+    short = ring2[None] & (d[None] < (reach - rd - k)[:, None, None])     # short of the nearest dots
+    ring2 = np.where((short.sum(axis=(1, 2)) >= 8)[:, None, None], short, ring2[None]).reshape(len(at), -1)
+    flat_box = box.reshape(len(at), -1)
+    centre = masked_median(flat_box, ring2, 1)
+    spread = 1.4826 * masked_median(np.abs(flat_box - centre[:, None]), ring2, 1) + 1e-6
     flat = np.where(np.hypot(ex, ey) <= tr[:, None, None], box, -np.inf).reshape(len(at), -1)
     j = np.argmax(flat, axis=1)
     peak = flat[np.arange(len(at)), j]
@@ -748,19 +757,20 @@ def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: flo
 
 
 def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: np.ndarray, radius: float,
-                   pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   spacing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 5) by
     :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least
     :data:`SEARCH_SIGMA` times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px]
     measured the same way, not on the window's rim (a slope, not a dot), and correlated with the found dots'
     mean appearance by at least :data:`NCC_MIN` (:func:`_template_match`); or, if at least :data:`STRONG_SIGMA`
     times its local spread and :data:`STRONG_SHARE` of that median peak, correlated by :data:`NCC_STRONG`.
-    Returns found mask, positions [px] and significance."""
+    ``spacing``: the distance from each predicted position to its nearest neighbour on the lattice, ``(m,)`` or
+    one for all [px]. Returns found mask, positions [px] and significance."""
     if len(predicted) == 0:
         return np.empty(0, bool), np.empty((0, 2)), np.empty(0)
     ref_at = dots[np.linspace(0, len(dots) - 1, min(len(dots), 16)).astype(int)]
-    ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), float(con.scale)), radius, pitch)
-    peak, sig, where = _local_peaks(con, predicted, tol, radius, pitch)
+    ref, _, _ = _local_peaks(con, ref_at, np.full(len(ref_at), float(con.scale)), radius, np.median(spacing))
+    peak, sig, where = _local_peaks(con, predicted, tol, radius, spacing)
     inner = np.hypot(*(where - predicted).T) < np.maximum(np.asarray(tol) - con.scale, 0.5 * con.scale)
     typical = float(np.median(ref))
     plain = (sig >= SEARCH_SIGMA) & (peak >= 0.2 * typical)

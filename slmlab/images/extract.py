@@ -271,7 +271,7 @@ def _recover(contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, marg
         if todo.any():
             con = contrast() if con is None else con
             out.append((nodes[todo], *search_missing(con, p[todo], now.tolerance(nodes[todo]), dots, radius,
-                                                     fit.pitch)))
+                                                     now.spacing(nodes[todo]))))
             done |= {tuple(n) for n in nodes[todo]}
             searched, hit, where = (np.concatenate([o[i] for o in out]) for i in range(3))
             found = hit & _line_supported(*_plate_axes(fit, searched), hit)

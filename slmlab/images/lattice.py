@@ -435,6 +435,13 @@ class LatticeFit:
         s = self.model.steps(ab)
         return 0.3 * np.minimum(np.hypot(*s[:, :, 0].T), np.hypot(*s[:, :, 1].T))
 
+    def spacing(self, ab: np.ndarray) -> np.ndarray:
+        """Distance from nodes ``ab`` to their nearest neighbours [px]: the shortest local step along the
+        lattice's axes and its diagonals (an oblique view shears a lattice until a diagonal is the shortest)."""
+        s = self.model.steps(ab)
+        e1, e2 = s[:, :, 0], s[:, :, 1]
+        return np.min([np.hypot(*v.T) for v in (e1, e2, e1 + e2, e1 - e2)], axis=0)
+
 
 def inside_image(w: np.ndarray, shape: tuple[int, int], margin, overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
     """Points ``w`` ``(n, 2)`` [px] at least ``margin`` [px] (one, or one per point) inside an image of ``shape``,
