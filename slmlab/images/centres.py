@@ -44,7 +44,7 @@ from scipy.special import erfc
 from .dots import as_float, gather_patches
 from .streaks import clear_of_dots, clipped_band, strip_columns
 
-__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
+__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "DEPTH_SLOPE", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
            "saturation", "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse",
            "refine_edges", "refine_symmetry", "refine"]
@@ -481,6 +481,15 @@ FIT_NEIGHBOURS = 6
 #: stereo-DIC rig's "all together" images; at 0.25 it lost it, and the edge fit taken there was 0.059 px, not 0.043)
 FIT_SEEN = 0.1
 FIT_PARAMETERS = FIT_NONLINEAR + 6 + 3
+#: the spread of a Gaussian prior on each of the dot's depth slopes (over the patch's half side), a share of its
+#: depth (:func:`fit_dots`): light that gradients and vignetting change by a few per cent over a dot's patch (window
+#: streaks' gain is divided out first, :func:`_streak_gain`). Fitted freely, the slopes traded against the centre in
+#: noise: greenough:43 under the zoo's "noise" 0.146 px RMS (floor 0.041), 0.085 with this prior. A spread of 0.02
+#: took it to 0.059 but bright dots under everything together (stereo-piv:31, :37) to 1.3-1.6 times what free
+#: slopes gave, and dark ones under streaks (greenough:31, :37, two-level plates) to 1.2-1.3 times: their depth
+#: varies by more there; with 0.05 they are at 0.97-1.13 times
+DEPTH_SLOPE = 0.05
+_DEPTH, _SLOPES = FIT_NONLINEAR + 6, slice(FIT_NONLINEAR + 7, FIT_PARAMETERS)
 
 
 def _dot_model(theta: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, jacobian: bool = True
@@ -591,7 +600,8 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
     within :data:`FIT_MOVE_PX` or :data:`FIT_MOVE_RADII` of the dot's radius of the start, whichever is more:
     a large dot beside a steep glare has its moments' start pulled by more than 2 px; :func:`_converged`).
     ``outline`` ``(n, 4)``: each dot's outline and blur (``s11, s12, s22, w``) held, its centre, background and depth
-    fitted alone, and taken where its outline holds its start."""
+    fitted alone, and taken where its outline holds its start. The depth's slopes have a Gaussian prior
+    (:data:`DEPTH_SLOPE`, weighed against the fit's own residual variance: :func:`_slope_prior`)."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     unit = bool((np.asarray(weight) == 1.0).all())   # once, not at every step
@@ -607,9 +617,14 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
         diag = np.einsum("nkk->nk", jtj) + 1e-12
         if outline is not None:
             diag[:, 2:FIT_NONLINEAR] = 1.0
-        step = np.linalg.solve(jtj + lam[i, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS),
-                               -(jac @ r[..., None]))[..., 0]
+        grad = jac @ r[..., None]
+        mu = _slope_prior(theta[i], cost, w[i])
+        cost = cost + mu * (theta[i, _SLOPES] ** 2).sum(axis=1)
+        jtj[:, _SLOPES, _SLOPES] += mu[:, None, None] * np.eye(2)
+        grad[:, _SLOPES, 0] += mu[:, None] * theta[i, _SLOPES]
+        step = np.linalg.solve(jtj + lam[i, None, None] * diag[:, :, None] * np.eye(FIT_PARAMETERS), -grad)[..., 0]
         trial = _fit_cost(theta[i] + step, p[i], x, y, h, w[i], censored[i], jacobian=False, unit=unit)[2]
+        trial = trial + mu * ((theta[i, _SLOPES] + step[:, _SLOPES]) ** 2).sum(axis=1)
         better = np.isfinite(trial) & (trial < cost)
         theta[i[better]] += step[better]
         lam[i] = np.where(better, lam[i] / 3, lam[i] * 4)
@@ -618,6 +633,13 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
         if len(active) == 0:
             break
     return theta, _converged(theta, start, radius, held=outline is not None)
+
+
+def _slope_prior(theta: np.ndarray, cost: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The weight ``(n,)`` of the prior on the depth slopes (:data:`DEPTH_SLOPE`) in :func:`fit_dots`' cost: the
+    residual variance per pixel that carries weight over the prior's variance."""
+    seen = np.maximum((weight > 0).sum(axis=1), 1)
+    return cost / seen / (DEPTH_SLOPE * np.maximum(np.abs(theta[:, _DEPTH]), 1e-6)) ** 2
 
 
 def _converged(theta: np.ndarray, start: np.ndarray, radius: float, held: bool = False) -> np.ndarray:
