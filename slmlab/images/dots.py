@@ -671,23 +671,24 @@ def _box_means(p: np.ndarray, k: int) -> np.ndarray:
     return (cs[:, w:, w:] - cs[:, :n, w:] - cs[:, w:, :n] + cs[:, :n, :n]) / w ** 2
 
 
-def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, spacing
+def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, spacing: float | np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dot evidence near image points ``at`` ``(m, 2)`` [px], each on its own local background.
 
     Around each point a square reaching a dot's diameter and 4 px beyond the search window, but not to the
     next dot along the image's axes (``spacing``: the distance to the nearest dot, ``(m,)`` or one for all
-    [px]), is taken from the reduced, smoothed image; its background (:func:`_less_background`, outside the
-    search window and the dot) is subtracted; the rest is averaged over a box of the dot's size (a matched
-    filter). Returns the filter's highest value within ``tol`` [px] of each point [grey levels], its
-    significance (over the robust spread of the filter on a ring beyond the dot and short of its nearest
-    neighbours: the square's corners reach a lattice's diagonal neighbours, whose light, read as spread, took a
-    two-level plate's plain corner dots on a stereo-PIV rig's oblique view to 2-3 of it) and where it is [px]."""
+    [px]; the square's side from their median), is taken from the reduced, smoothed image; its background
+    (:func:`_less_background`, outside the search window and the dot) is subtracted; the rest is averaged over a
+    box of the dot's size (a matched filter). Returns the filter's highest value within ``tol`` [px] of each
+    point [grey levels], its significance (over the robust spread of the filter on the square beyond the dot, and
+    short of the nearest dots where that leaves a quarter of it: the square's corners reach a lattice's diagonal
+    neighbours, whose light, read as spread, took a two-level plate's plain corner dots on a stereo-PIV rig's
+    oblique view to 2-3 of it) and where it is [px]."""
     r = con.scale
     rd, tr = radius / r, np.asarray(tol, float) / r
-    reach = np.broadcast_to(np.asarray(spacing, float), (len(at),)) / r
+    apart = np.broadcast_to(np.asarray(spacing, float), (len(at),)) / r
     inner = int(np.ceil(rd + 3 + tr.max()))                      # the search window and the dot
-    half = max(min(int(np.median(reach) - rd - 1), inner + int(np.ceil(rd)) + 4), inner)
+    half = max(min(int(np.median(apart) - rd - 1), inner + int(np.ceil(rd)) + 4), inner)
     p, base = gather_patches(con.signed, con.to_reduced(at), half)
     off = np.arange(-half, half + 1, dtype=np.float32)
     oy, ox = np.meshgrid(off, off, indexing="ij")
@@ -702,8 +703,10 @@ def _local_peaks(con: Contrast, at: np.ndarray, tol: np.ndarray, radius: float, 
     ring2 = d > rd + 1 + k
     if ring2.sum() < 8:
         ring2 = d >= np.sort(d.ravel())[-8]
-    short = ring2[None] & (d[None] < (reach - rd - k)[:, None, None])     # short of the nearest dots
-    ring2 = np.where((short.sum(axis=(1, 2)) >= 8)[:, None, None], short, ring2[None]).reshape(len(at), -1)
+    # short of the nearest dots (their disk and the box's reach along a diagonal), where that leaves a quarter
+    short = ring2[None] & (d[None] < (apart - rd - 1 - k * np.sqrt(2))[:, None, None])
+    enough = short.sum(axis=(1, 2)) >= 0.25 * ring2.sum()
+    ring2 = np.where(enough[:, None, None], short, ring2[None]).reshape(len(at), -1)
     flat_box = box.reshape(len(at), -1)
     centre = masked_median(flat_box, ring2, 1)
     spread = 1.4826 * masked_median(np.abs(flat_box - centre[:, None]), ring2, 1) + 1e-6
@@ -757,7 +760,7 @@ def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: flo
 
 
 def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: np.ndarray, radius: float,
-                   spacing) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   spacing: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 5) by
     :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least
     :data:`SEARCH_SIGMA` times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px]

@@ -436,11 +436,13 @@ class LatticeFit:
         return 0.3 * np.minimum(np.hypot(*s[:, :, 0].T), np.hypot(*s[:, :, 1].T))
 
     def spacing(self, ab: np.ndarray) -> np.ndarray:
-        """Distance from nodes ``ab`` to their nearest neighbours [px]: the shortest local step along the
-        lattice's axes and its diagonals (an oblique view shears a lattice until a diagonal is the shortest)."""
-        s = self.model.steps(ab)
-        e1, e2 = s[:, :, 0], s[:, :, 1]
-        return np.min([np.hypot(*v.T) for v in (e1, e2, e1 + e2, e1 - e2)], axis=0)
+        """Distance from nodes ``ab`` to their nearest neighbours [px]: the nearest of the eight around each (an
+        oblique view shears a lattice until a diagonal is the shortest; a two-level plate's parallax brings the
+        other level's dots nearer)."""
+        ab = np.asarray(ab).reshape(-1, 2)
+        at = self.model.predict(ab)
+        around = [(1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 1)]
+        return np.min([np.hypot(*(self.model.predict(ab + np.array(o)) - at).T) for o in around], axis=0)
 
 
 def inside_image(w: np.ndarray, shape: tuple[int, int], margin, overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
