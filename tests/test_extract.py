@@ -745,6 +745,22 @@ def test_a_lattice_whose_alternate_columns_were_lost_near_the_middle_is_not_take
     assert fit.on.all() and 25 < fit.pitch < 26, (fit.on.sum(), len(xy), fit.pitch)
 
 
+@pytest.mark.parametrize("e1, e2", [((40.0, 0.0), (30.0, 20.0)), ((31.0, 1.0), (-2.0, 27.0))])
+def test_a_lattice_s_spacing_is_the_distance_to_each_dot_s_nearest_neighbour(e1, e2):
+    """:meth:`slmlab.images.lattice.LatticeFit.spacing` (the local search's ring stops short of it): on a sheared
+    lattice the nearest dot lies along a diagonal (22.4 px, the steps 40 and 36), on a plain one along an axis."""
+    from types import SimpleNamespace
+    from scipy.spatial import cKDTree
+    from slmlab.images.lattice import fit_lattice
+    a, b = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    xy = 300 + a.ravel()[:, None] * np.array(e1) + b.ravel()[:, None] * np.array(e2)
+    cand = SimpleNamespace(xy=xy, area=np.full(len(xy), 50.0), border=np.zeros(len(xy), bool))
+    fit = fit_lattice(cand, (1000, 1000))
+    inner = np.flatnonzero(fit.on & (np.abs(a.ravel() - 5.5) < 4) & (np.abs(b.ravel() - 5.5) < 4))
+    nearest = cKDTree(xy).query(xy[inner], k=2)[0][:, 1]
+    np.testing.assert_allclose(fit.spacing(fit.node[inner]), nearest, rtol=0.01)
+
+
 def test_a_band_of_clutter_and_the_smaller_dots_does_not_seed_a_lattice_of_every_third_line():
     """A 9 × 9 plate whose dots in every third column are smaller (beside a glare, read at a lower level) among
     200 smaller blobs (hot pixels): the band of areas holding the clutter and the smaller dots is the most
