@@ -587,7 +587,7 @@ def fit_dots(p: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, st
     a large dot beside a steep glare has its moments' start pulled by more than 2 px; :func:`_converged`).
     ``outline`` ``(n, 4)``: each dot's outline and blur (``s11, s12, s22, w``) held, its centre, background and depth
     fitted alone, and taken where its outline holds its start. The depth's slopes have a Gaussian prior
-    (:data:`DEPTH_SLOPE`, weighed against the fit's own residual variance: :func:`_slope_prior`)."""
+    (:data:`DEPTH_SLOPE`, weighed against the fit's own residual variance, again at each step: :func:`_slope_prior`)."""
     h = float(np.abs(x).max())
     w = np.broadcast_to(weight, p.shape)
     unit = bool((np.asarray(weight) == 1.0).all())   # once, not at every step

@@ -761,7 +761,7 @@ def _template_match(con: Contrast, at: np.ndarray, dots: np.ndarray, radius: flo
 
 def search_missing(con: Contrast, predicted: np.ndarray, tol: np.ndarray, dots: np.ndarray, radius: float,
                    spacing: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 5) by
+    """Look for dots at ``predicted`` image positions ``(m, 2)`` [px] (module docstring, step 4) by
     :func:`_local_peaks`: a dot is there if the matched filter's peak within ``tol`` [px] is at least
     :data:`SEARCH_SIGMA` times its local spread, a fifth of the median peak of the found ``dots`` ``(n, 2)`` [px]
     measured the same way, not on the window's rim (a slope, not a dot), and correlated with the found dots'
