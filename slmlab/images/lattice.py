@@ -440,9 +440,9 @@ class LatticeFit:
         oblique view shears a lattice until a diagonal is the shortest; a two-level plate's parallax brings the
         other level's dots nearer)."""
         ab = np.asarray(ab).reshape(-1, 2)
-        at = self.model.predict(ab)
-        around = [(1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 1)]
-        return np.min([np.hypot(*(self.model.predict(ab + np.array(o)) - at).T) for o in around], axis=0)
+        around = np.array([(0, 0), (1, 0), (0, 1), (1, 1), (1, -1), (-1, 0), (0, -1), (-1, -1), (-1, 1)])
+        w = self.model.predict((ab[None] + around[:, None]).reshape(-1, 2)).reshape(len(around), len(ab), 2)
+        return np.hypot(*(w[1:] - w[:1]).transpose(2, 0, 1)).min(axis=0)
 
 
 def inside_image(w: np.ndarray, shape: tuple[int, int], margin, overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
