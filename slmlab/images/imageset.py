@@ -242,7 +242,8 @@ def extract_set(set_dir: str | Path, *, method: str = "auto", progress: bool | N
     ``method``: the centre estimator of dot plates (one of :data:`slmlab.images.centres.METHODS`, or
     ``'auto'``: chosen per plate and view on its first image by :func:`slmlab.images.extract.choose_method`,
     and named in the notes; where that is the model ``fit``, an image on which it loses dots is taken by the
-    runner-up, :func:`_fit_or`).
+    runner-up, :func:`_fit_or`, and where the fit was tried but not chosen, an image on which the chosen estimator
+    drops dots the fit keeps is taken by the fit, :func:`_or_fit`).
 
     Returns the points table (``POINT_COLUMNS``; plus ``x_mm, y_mm, z_mm`` for plates anchored by markers and
     ``level`` for two-level plates) and notes: how each plate's numbering was anchored, what the images'
@@ -282,6 +283,7 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
     todo = [(pr, side, path) for pr in pairs for side, path in (("l", pr.left), ("r", pr.right)) if path is not None]
     chosen: dict[tuple[str, str], str] = {}
     runner_up: dict[tuple[str, str], str] = {}
+    fit_tried: set[tuple[str, str]] = set()
     images = _Images(image_size)
     hot, counts = _camera_hot(todo, specs, images)
     for side, mask in hot.items():
@@ -298,11 +300,15 @@ def _find_in_images(pairs: list[ImagePair], specs: dict, image_size: tuple, meth
             if method == "auto" and (spec.name, side) not in chosen:
                 chosen[(spec.name, side)], res, dots, runner_up[(spec.name, side)] = choose_method(
                     img, spec.rows, spec.cols, **kw)
+                if np.isfinite(res.get("fit", np.nan)):
+                    fit_tried.add((spec.name, side))
                 notes.append(f"plate {spec.name}, {_VIEW[side]} view: centres by {chosen[(spec.name, side)]} "
                              "(lattice residual " + ", ".join(f"{v:.3f} px by {k}" for k, v in res.items())
                              + f", on {path.name})")
             elif method == "auto" and chosen[(spec.name, side)] == "fit":
                 dots = _fit_or(img, spec, runner_up[(spec.name, side)], kw, path, notes)
+            elif method == "auto" and (spec.name, side) in fit_tried:
+                dots = _or_fit(img, spec, chosen[(spec.name, side)], kw, path, notes)
             else:
                 dots = extract_image(img, spec.rows, spec.cols, method=chosen.get((spec.name, side), method), **kw)
         else:
@@ -377,6 +383,24 @@ def _fit_or(img: np.ndarray, spec: PlateSpec, other: str, kw: dict, path: Path, 
     notes.append(f"plate {spec.name}: centres by {other} on {path.name} (the fit lost "
                  f"{len(both[other].table) - len(both['fit'].table)} of its dots)")
     return both[other]
+
+
+def _or_fit(img: np.ndarray, spec: PlateSpec, chosen: str, kw: dict, path: Path, notes: list) -> ImageDots:
+    """An image of a view whose centres are by ``chosen``, not the model fit, where the fit was tried on its first
+    image (an uneven background, or textured dots): the chosen estimator's dots, unless it dropped some as off the
+    lattice after refinement and the fit keeps more dots (:func:`_fit_or`'s mirror; a dot half in a clipped window
+    streak is pulled off the lattice by the estimators that flatten on a ring, not by the fit, which censors the
+    clipped pixels: greenough:7201, two dots of one image 0.5 px off by the ellipse fits, placed by the fit); then
+    that image is the fit's, and a note says so."""
+    dots = extract_image(img, spec.rows, spec.cols, method=chosen, **kw)
+    if not dots.report["reason"].str.contains("off the lattice after refinement", regex=False).any():
+        return dots
+    fit = extract_image(img, spec.rows, spec.cols, method="fit", **kw)
+    if len(fit.table) <= len(dots.table):
+        return dots
+    notes.append(f"plate {spec.name}: centres by fit on {path.name} ({chosen} lost "
+                 f"{len(fit.table) - len(dots.table)} of its dots off the lattice)")
+    return fit
 
 
 def _report_notes(found: list[_Found], notes: list) -> None:
