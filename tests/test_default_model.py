@@ -133,6 +133,23 @@ def test_crossed_folds_test_every_dot_of_the_end_planes_once(design, diagonal):
             assert (tr & (pts["position"] == pos).to_numpy()).any()
 
 
+def test_a_thinned_set_keeps_every_fold_of_dots():
+    """Every k-th dot of a 27 × 48 lattice (k = 5) fell in one fold of ``(row + 2·col) mod 5``: a random stereo-PIV
+    rig's 13-plane stack had no crossed fold with both training and test rows, and ``calibrate`` crashed. Thinned
+    within each fold, the five folds keep a fifth of the dots each, and every kept dot keeps all its positions."""
+    import pandas as pd
+    from slmlab.models.folds import dot_folds, thin_dots
+    rows, cols = np.meshgrid(np.arange(1, 28), np.arange(1, 49), indexing="ij")
+    one = pd.DataFrame({"row": rows.ravel(), "col": cols.ravel()})
+    pts = pd.concat([one.assign(position=p) for p in (1, 2)], ignore_index=True)
+    keep = thin_dots(pts, 520)                          # k = 5
+    counts = np.bincount(dot_folds(pts[keep]), minlength=5)
+    assert counts.min() > 0 and counts.max() - counts.min() <= 2, counts
+    assert keep.sum() <= 520 + 2 * 5
+    kept = pts[keep].groupby(["row", "col"])["position"].nunique()
+    assert (kept == 2).all()
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_model_too_stiff_in_depth_is_not_chosen_for_z_on_a_charuco_stack(seed):
     """A five-plane ChArUco stack of the Greenough rig: tested on interior planes alone, the Soloff model linear in
