@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
+from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 from .base import get_model_class
@@ -133,6 +134,8 @@ def held_out_errors(cal: CalibrationSet, name: str, options: dict | None = None,
     ``by_position`` of each held-out position's own (:func:`per_position_offsets`)."""
     pts, world, mode = world_positions(cal, (options or {}).get("mode", "auto"))
     folds = row_folds(pts, mode) if folds is None else folds
+    if not folds:
+        raise SlmlabError("no held-out fold has both training and test rows: too few dots or positions", cal.path)
     position = position_keys(pts)
     cls = get_model_class(name)
     errs = []
