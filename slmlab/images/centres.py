@@ -44,7 +44,7 @@ from scipy.special import erfc
 from .dots import as_float, gather_patches
 from .streaks import clear_of_dots, clipped_band, strip_columns
 
-__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "DEPTH_SLOPE", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
+__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "DEPTH_SLOPE", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
            "saturation", "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse",
            "refine_edges", "refine_symmetry", "refine"]
@@ -55,9 +55,15 @@ METHODS = ("moments", "ellipse", "edges", "fit", "symmetry")
 #: square of their offsets over its noise expectation (about 1 without streaks; window streaks across the
 #: dot: 3-100 on the rendered zoo)
 STREAKINESS = 2.0
-#: ... and the columns' offsets above the dot correlate with those below it by more than this (window streaks
-#: on the rendered zoo: a median 0.6-1.0; real plates' texture, JPEG blocks and neighbours: 0.0-0.4)
-COHERENCE = 0.8
+#: ... and the columns' offsets above the dot correlate with those below it (:func:`coherent`) by at least this
+#: (chance, over the 30-50 columns of a strip: about 0.15 either way; real plates' texture, JPEG blocks and
+#: neighbours: 0.0-0.4) ...
+COHERENCE = 0.5
+#: ... and by at least this share of what a streak as strong as the offsets would give, ``(χ - 1) / (χ + 1)`` for
+#: their mean square χ over its noise expectation (a streak is alike above and below; each side carries twice the
+#: mean's noise). A fixed 0.8 asked for streaks four times the noise: greenough:43's under everything together,
+#: χ 3.6-12 and coherence 0.49-0.75 as that predicts, went unread, and whole columns of dots 0.6-1.0 px off.
+COHERENCE_SHARE = 0.8
 #: ... and, for bright dots on a dark plate, none of them changes the plate's light by more than this share of it
 #: (the model fit divides the dots by the streaks' gain, :func:`_streak_gain`): a window's streaks dim or brighten
 #: what is behind them (the rendered zoo's bands: up to 0.35, times a fade of up to 1.5; a dot whose largest
@@ -85,7 +91,7 @@ class Flat:
     :func:`slmlab.images.streaks.strip_columns`) where the dot's
     ``streakiness`` ``(n,)``, the mean square of those offsets over their noise variance (about 1 or less
     without streaks), is above :data:`STREAKINESS` and their ``coherence`` ``(n,)``, the correlation of
-    the offsets above the dot with those below it, above :data:`COHERENCE` (else zero)."""
+    the offsets above the dot with those below it, is that of a streak (:func:`coherent`; else zero)."""
 
     base: np.ndarray
     ox: np.ndarray
@@ -95,6 +101,14 @@ class Flat:
     column: np.ndarray | None = None
     streakiness: np.ndarray | None = None
     coherence: np.ndarray | None = None
+
+
+def coherent(chi: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Whether columns' offsets of mean square ``chi`` over their noise expectation, correlated ``rho`` above the
+    dot with below it, run through it as a window streak does: ``rho`` at least :data:`COHERENCE` and
+    :data:`COHERENCE_SHARE` of ``(chi - 1) / (chi + 1)``, a streak's of that strength (:func:`flatten`)."""
+    chi = np.asarray(chi, float)
+    return np.asarray(rho) >= np.maximum(COHERENCE, COHERENCE_SHARE * (chi - 1) / (chi + 1))
 
 
 def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, columns: np.ndarray | None = None,
@@ -124,7 +138,7 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
         if clipped_alone:
             column = _clipped_patches_alone(column, p, _plane(coef, ox[None], oy[None]), d > ring_in, sat)
         light = dark | (np.abs(column).max(axis=1) <= STREAK_DEPTH * np.maximum(coef[:, 0], 1.0))
-        column[(chi <= STREAKINESS) | (rho <= COHERENCE) | ~light] = 0.0
+        column[(chi <= STREAKINESS) | ~coherent(chi, rho) | ~light] = 0.0
     if crop is not None and crop < half:
         sl = slice(half - crop, half + crop + 1)
         p, ox, oy = p[:, sl, sl], ox[sl, sl], oy[sl, sl]
@@ -893,7 +907,7 @@ def streak_mask(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: b
     """Whether window streaks cross the image's dots ``(n, 2)`` [px], and where to read them: the pixels clear of
     every dot (:func:`slmlab.images.streaks.clear_of_dots`) if at least :data:`STREAK_SHARE` of the dots (of at
     most 32 spread over the list) have columns that differ by more than noise (:data:`STREAKINESS`), alike above
-    and below the dot (:data:`COHERENCE`), along strips through them (:func:`flatten`, patches reaching ``reach``
+    and below the dot (:func:`coherent`), along strips through them (:func:`flatten`, patches reaching ``reach``
     [px]), bright dots by at least :data:`STREAK_EFFECT` of their contrast; else ``None``."""
     if len(centres) == 0:
         return None
