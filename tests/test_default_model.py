@@ -116,15 +116,17 @@ def test_two_positions_of_a_two_level_plate_on_a_micrometre_stage(seed):
     assert (t.loc["direct", xy] <= 1.1 * t.loc["floor", xy]).all(), t[xy]
 
 
-@pytest.mark.parametrize("rig", ["greenough:12", "greenough:13"])
-def test_at_two_positions_of_a_deep_target_a_position_s_offset_is_not_held_against_a_model(rig):
-    """A two-level plate at two stage positions of random Greenough rigs (stage noise several times the floor): the
-    plate's own depth tells each position's stage error, which the direct model keeps out of the optics as a
-    random effect and a polynomial learns as optics. Held-out dots measured net of their position's offset
-    (:func:`slmlab.models.auto._deep_target_at_two_positions`), the default takes the direct model and is within
+@pytest.mark.parametrize("rig, design", [("greenough:12", "two-level-2z"), ("greenough:13", "two-level-2z"),
+                                         ("greenough:14", "two-level-3z")])
+def test_at_few_positions_of_a_deep_target_a_position_s_offset_is_not_held_against_a_model(rig, design):
+    """A two-level plate at two or three stage positions of random Greenough rigs (stage noise several times the
+    floor): the plate's own depth tells each position's stage error, which the direct model keeps out of the optics
+    as a random effect and a polynomial learns as optics. Held-out dots measured net of their position's offset
+    (:func:`slmlab.models.auto._deep_target_at_few_positions`), the default takes the direct model and is within
     1.05x its best candidate inside the volume in X and Y (before: a cubic or the Soloff model, 4.6x in Y on
-    greenough:12, 2.3x in X on greenough:13), and within 1.2x the noise floor."""
-    t = _table(rig, "two-level-2z", int(rig.split(":")[1]))
+    greenough:12 at two positions, 2.3x in X on greenough:13, 3.5x in X on greenough:14 at three), and within 1.2x
+    the noise floor."""
+    t = _table(rig, design, int(rig.split(":")[1]))
     xy = ["X_um", "Y_um"]
     cands = t.drop(index=["floor", "frame floor", "auto"])[xy].min()
     assert (t.loc["auto", xy] <= 1.05 * cands).all(), t[xy]
