@@ -44,7 +44,8 @@ from scipy.special import erfc
 from .dots import as_float, gather_patches
 from .streaks import clear_of_dots, clipped_band, strip_columns
 
-__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "DEPTH_SLOPE", "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
+__all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "DEPTH_SLOPE",
+           "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
            "saturation", "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse",
            "refine_edges", "refine_symmetry", "refine"]

@@ -245,9 +245,10 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
       the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floor`: what no
       estimator can beat under that camera's noise);
     * the centre ``method``: each view's choice and any image's other one (the runner-up where the fit lost dots
-      there, the fit where the chosen one dropped dots the fit kept; :func:`slmlab.images.imageset.extract_set`), ``tracked_images``: how many images could not be numbered
-      alone and were tracked by the stage motion of the images that were (:func:`slmlab.images.tracking.track`;
-      where that is ambiguous the image is left out), and ``note``: why a set could not be extracted
+      there, the fit where the chosen one dropped dots the fit kept; :func:`slmlab.images.imageset.extract_set`),
+      ``tracked_images``: how many images could not be numbered alone and were tracked by the stage motion of the
+      images that were (:func:`slmlab.images.tracking.track`; where that is ambiguous the image is left out), and
+      ``note``: why a set could not be extracted
       (``extract``'s one-line error; then nothing is found)."""
     if folder is None:  # a temporary folder, removed afterwards
         with tempfile.TemporaryDirectory(prefix="slmlab-extraction-") as tmp:
