@@ -27,7 +27,7 @@ from slmlab.virtual.designs import simulate_design
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import (_degradation_row, extraction_by_degradation, plate_in_view_set,
                                        rig_extraction_errors)
-from slmlab.virtual.floor import fisher_floor, rendered_floor
+from slmlab.virtual.floor import CELL, fisher_floor, rendered_floor
 from slmlab.virtual.render import (Degradations, render_board_set, render_plate, render_rig_set, render_set,
                                    rendered_truth, rig_degradations)
 from slmlab.virtual.rigs import make_rig, random_rig, rig_by_name
@@ -407,6 +407,30 @@ def test_the_floor_of_a_gaussian_spot_is_the_textbook_one():
         est.append(least_squares(lambda c: (image([c]) - noisy).ravel(), centres[0] + 0.2).x)
     spread = np.std(np.array(est), axis=0)
     assert np.allclose(spread, got[0], rtol=0.15), (spread, got[0])
+
+
+def test_the_floor_with_the_light_unknown_is_the_whole_fisher_matrixs():
+    """A Gaussian spot of contrast ``a`` on a background plane ``b0 + bx x + by y``, in white noise: the bound on
+    its centre with the light unknown is the centre's block of the inverse of the six parameters' Fisher matrix
+    (here by central differences of the whole model over the dot's cell), above the bound with the light known
+    (the slopes, odd about the centre as the centre's own change is, trade against it)."""
+    noise, s, (x0, y0) = 2.0, 3.0, (12.4, 11.7)   # a spot that fills much of its cell, as a blurred dot does
+    yy, xx = np.mgrid[0:24, 0:24].astype(float)
+    cell = np.hypot(xx - x0, yy - y0) <= CELL * 24
+
+    def model(t):
+        cx, cy, b0, bx, by, a = t
+        return b0 + bx * xx + by * yy + a * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * s * s))
+    theta = np.array([x0, y0, 100.0, 0.5, -0.3, 35.0])
+    steps = np.array([1e-4, 1e-4, 1e-3, 1e-5, 1e-5, 1e-3])
+    jac = np.array([((model(theta + e) - model(theta - e)) / (2 * e.sum()))[cell] for e in np.diag(steps)])
+    expected = np.sqrt(np.diag(np.linalg.inv(jac @ jac.T / noise ** 2))[:2])
+    spot = np.exp(-((xx - x0) ** 2 + (yy - y0) ** 2) / (2 * s * s))
+    gx, gy = 35.0 * spot * (xx - x0) / s ** 2, 35.0 * spot * (yy - y0) / s ** 2
+    args = (gx, gy, np.full(xx.shape, noise ** 2), np.ones(xx.shape, bool), np.array([[x0, y0]]))
+    known, unknown = fisher_floor(*args)[0], fisher_floor(*args, amplitude=spot)[0]
+    assert np.allclose(unknown, expected, rtol=1e-4), (unknown, expected)
+    assert (unknown > 1.05 * known).all(), (unknown, known)
 
 
 def test_a_rendered_dots_floor_falls_with_contrast_and_has_none_where_clipped():

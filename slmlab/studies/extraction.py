@@ -214,11 +214,13 @@ def _degradation_row(errors: pd.DataFrame, floor: pd.DataFrame) -> dict:
     good = vis["found"] & (dist < 0.3 * vis["spacing_px"])
     e = np.r_[vis.loc[good, "err1"], vis.loc[good, "err2"]]
     f = np.r_[vis.loc[good, "floor1_px"], vis.loc[good, "floor2_px"]]
+    light = np.r_[vis.loc[good, "light_floor1_px"], vis.loc[good, "light_floor2_px"]]
     return {"images": int(vis.groupby(["sequence", "position", "view"]).ngroups), "visible_dots": int(len(vis)),
             "found_percent": float(100 * good.mean()) if len(vis) else float("nan"),
             "misnumbered": int((vis["found"] & ~good).sum()),
             "rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan"),
             "floor_px": float(np.sqrt(np.mean(f ** 2))) if len(f) else float("nan"),
+            "light_floor_px": float(np.sqrt(np.mean(light ** 2))) if len(light) else float("nan"),
             "max_px": float(dist[good].max()) if good.any() else float("nan")}
 
 
@@ -243,7 +245,9 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     * ``found_percent`` (found and numbered as the truth, within 0.3 of the dot spacing), ``misnumbered``;
     * ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the found dots, and ``floor_px``,
       the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floor`: what no
-      estimator can beat under that camera's noise);
+      estimator can beat under that camera's noise), and ``light_floor_px``, the same with the dots' light unknown
+      (each dot's contrast and a plane of background under it: what an estimator that measures them from the
+      dot's own pixels cannot beat);
     * the centre ``method``: each view's choice and any image's other one (the runner-up where the fit lost dots
       there, the fit where the chosen one dropped dots the fit kept; :func:`slmlab.images.imageset.extract_set`),
       ``tracked_images``: how many images could not be numbered alone and were tracked by the stage motion of the
