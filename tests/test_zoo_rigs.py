@@ -55,3 +55,21 @@ def test_the_floor_in_the_commanded_frame_is_the_stages_share():
     built = compare_models(rig, "zstack-5", seed=1, models=("auto",), n_validation=300).set_index("model")
     assert (built.loc["frame floor", xy] > 2 * built.loc["floor", xy]).all(), built[xy]
     assert (built.loc["auto", xy] > 0.8 * built.loc["frame floor", xy]).all(), built[xy]
+
+
+def test_the_random_zoo_names_its_rigs_as_the_command_line_reads_them_and_keeps_the_evidence():
+    """``random_zoo`` on a rig no preset or test names: its row names the rig as ``simulate --rig`` reads it
+    (``KIND:SEED``), the default within its target against its own candidates in two coordinates of three at
+    least, and the cross-validated errors it chose by beside the ratios, in µm: the chosen candidate's within a
+    factor 2 of what the volume shows."""
+    from slmlab.studies.zoo import random_zoo, target_summary
+
+    table = random_zoo([23], kinds=("stereo-piv",), designs=("zstack-5",), n_validation=300)
+    assert list(table["rig"]) == ["stereo-piv:23"]
+    row = table.iloc[0]
+    chosen = row["choice"].split(", ")[0].split(": ")[1]
+    held = dict(part.split(" ") for part in row["held_out_rms_um"].split("; "))
+    x_held = float(held[chosen].split("/")[0])
+    assert 0.5 * row["X_um"] < x_held < 2.0 * row["X_um"], (x_held, row["X_um"])
+    summary = target_summary(table).set_index("ratio")
+    assert summary.loc["vs_candidates", "cells"] == 3 and summary.loc["vs_candidates", "met"] >= 2, summary
