@@ -539,6 +539,10 @@ def test_auto_takes_the_smoother_of_the_whole_dot_estimators():
     assert _best_method({**kept, "fit": 49}, {**res, "fit": 1.01 * AUTO_FIT_RATIO * 0.02}) == "symmetry"
     assert _best_method({**kept, "fit": 49}, {**res, "fit": float("nan")}) == "symmetry"
     assert _best_method({"fit": 49, "moments": 40}, {**res, "fit": 0.05}) == "fit"     # alone on the lattice
+    # where the dots' patches saturate, the burden is turned: the fit unless clearly rougher
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": 0.99 * 0.02 / AUTO_FIT_RATIO}, 1 / AUTO_FIT_RATIO) == "fit"
+    assert _best_method({**kept, "fit": 49}, {**res, "fit": 1.01 * 0.02 / AUTO_FIT_RATIO},
+                        1 / AUTO_FIT_RATIO) == "symmetry"
 
 
 def test_auto_lets_the_fit_lose_one_dot_and_compares_on_the_common_dots():
