@@ -874,3 +874,20 @@ def test_a_two_level_lattice_is_fitted_along_the_plate_s_axes_at_any_parallax_th
     m, *_ = np.linalg.lstsq(truth, got, rcond=None)
     assert np.allclose(np.abs(m[:2]), np.eye(2), atol=1e-6) or np.allclose(np.abs(m[:2]), np.eye(2)[::-1], atol=1e-6), m
     assert np.allclose(truth @ m, got, atol=1e-6)
+
+
+def test_a_clipped_region_is_two_saturated_pixels_side_by_side_not_a_lone_one():
+    """saturated_dots: any pixel at full scale in a dot's patch; with regions, only one with a saturated neighbour
+    above, below or beside it (a glare, a clipped streak), not a lone pixel noise took there, nor a lone pixel on
+    the image's border that the patch's edge padding would copy beside itself."""
+    from slmlab.images.centres import saturated_dots
+    img = np.full((60, 60), 100, np.uint8)
+    dots = np.array([[10.0, 10.0], [30.0, 30.0], [50.0, 10.0], [10.0, 50.0], [50.0, 56.0]])   # (x, y) [px]
+    img[12, 13] = 255                     # lone, near the first dot
+    img[31, 28] = img[31, 29] = 255       # side by side, near the second
+    img[8, 50] = img[9, 50] = 255         # one above the other, near the third
+    img[47, 12] = img[48, 13] = 255       # diagonal only, near the fourth
+    img[59, 50] = 255                     # lone on the bottom border, near the fifth
+    assert saturated_dots(img, dots, 4.0).tolist() == [True, True, True, True, True]
+    assert saturated_dots(img, dots, 4.0, regions=True).tolist() == [False, True, True, False, False]
+    assert not saturated_dots(np.full((60, 60), 100, np.uint8), dots, 4.0, regions=True).any()   # none at full scale

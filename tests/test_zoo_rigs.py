@@ -67,8 +67,8 @@ def test_the_random_zoo_names_its_rigs_as_the_command_line_reads_them_and_keeps_
     table = random_zoo([23], kinds=("stereo-piv",), designs=("zstack-5",), n_validation=300)
     assert list(table["rig"]) == ["stereo-piv:23"]
     row = table.iloc[0]
-    chosen = row["choice"].split(", ")[0].split(": ")[1]
-    held = dict(part.split(" ") for part in row["held_out_rms_um"].split("; "))
+    chosen = dict(part.split(": ") for part in row["choice"].split(", "))["X"]   # listed by candidate
+    held = dict(part.rsplit(" ", 1) for part in row["held_out_rms_um"].split("; "))
     x_held = float(held[chosen].split("/")[0])
     assert 0.5 * row["X_um"] < x_held < 2.0 * row["X_um"], (x_held, row["X_um"])
     summary = target_summary(table).set_index("ratio")

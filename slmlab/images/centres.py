@@ -680,25 +680,35 @@ def saturation(img: np.ndarray) -> float:
 def saturated_dots(img: np.ndarray, centres: np.ndarray, reach: float, *, regions: bool = False) -> np.ndarray:
     """Whether each dot ``(n,)`` at ``centres`` ``(n, 2)`` [px] has a saturated pixel (:func:`saturation`) in its
     patch, within ``reach`` + 2 px of it along either axis (``reach`` [px]: :func:`dot_reach`); with ``regions``,
-    two side by side: a clipped region (a glare beside the dot, a streak that clips the plate), not a lone pixel
-    that noise took to full scale (under the zoo's heavy noise on the Greenough rig's 8-bit plate at 200 DN a few
-    do)."""
-    p, _ = gather_patches(img, np.asarray(centres, float), int(np.ceil(reach + 2)))
-    s = p >= saturation(img)
-    if not regions:
-        return s.any(axis=(1, 2))
-    return (s[:, 1:] & s[:, :-1]).any(axis=(1, 2)) | (s[:, :, 1:] & s[:, :, :-1]).any(axis=(1, 2))
+    one with a saturated neighbour above, below or beside it: a clipped region (a glare beside the dot, a streak
+    that clips the plate), not a lone pixel that noise took to full scale (under the zoo's heavy noise on the
+    Greenough rig's 8-bit plate at 200 DN a few do)."""
+    c = np.asarray(centres, float)
+    sat = saturation(img)
+    if not np.isfinite(sat):   # nothing reaches full scale
+        return np.zeros(len(c), bool)
+    clipped = img >= sat
+    if regions:   # on the image, so that a patch's edge padding does not pair a border pixel with its copy
+        v, h = clipped[1:] & clipped[:-1], clipped[:, 1:] & clipped[:, :-1]
+        clipped = np.zeros_like(clipped)
+        clipped[1:] |= v
+        clipped[:-1] |= v
+        clipped[:, 1:] |= h
+        clipped[:, :-1] |= h
+    p, _ = gather_patches(clipped, c, int(np.ceil(reach + 2)))
+    return p.any(axis=(1, 2))
 
 
-def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool) -> bool:
+def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool,
+                      reach: float | None = None) -> bool:
     """Whether the background under the image's dots ``(n, 2)`` [px] is one the ring-flattened estimators
     extrapolate badly: saturated pixels within the dots' reach + 2 px of a dot (:func:`saturated_dots`: a bright
     region beside it) or window streaks across the dots (:func:`streak_mask`); where :func:`refine_fit` is
-    worth its time."""
+    worth its time. ``reach`` [px]: :func:`dot_reach`, measured unless given."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return False
-    reach = dot_reach(img, c, radii, dark)
+    reach = dot_reach(img, c, radii, dark) if reach is None else reach
     return bool(saturated_dots(img, c, reach).any()) or streak_mask(img, c, radii, dark, reach) is not None
 
 

@@ -71,15 +71,12 @@ AUTO_EDGE_RATIO = 0.7
 #: against 0.038), while on PIV Challenge case E's scratched dots the fit lies 0.83-0.86 of the edge fits'
 #: and its centres, as smooth, agree less with the organisers' picks (0.228 px against 0.220). On an image whose
 #: dots' patches hold a clipped region (:func:`slmlab.images.centres.saturated_dots` with ``regions``: a glare
-#: beside them, a streak that clips the plate; not a lone pixel at full scale, which noise makes and which
-#: biases nothing: counted, it had the fit taken under the Greenough rig's heavy noise, 0.030 px RMS against the
-#: point of symmetry's 0.028) the burden is turned: the fit is taken unless its residual is above the best other's
-#: divided by this. The others take clipped pixels for the plate and a glare's curve for a plane, and what that
-#: does to a group of neighbouring dots is smooth over the plate: the lattice's cubic absorbs it, and the residual
-#: does not see it (the Greenough rig with everything together: the fit 0.084 px from the lattice against the
-#: point of symmetry's 0.081, 0.074 px from the truth against 0.13; over every distance from the glare the fit was
-#: nearer the truth). Rendered zoo, seeds 1 and 31-36, both views and plates of one and two levels, under a bright
-#: region, the rig's camera, window streaks and everything together (:func:`choose_method`): see the commit
+#: beside them, a streak that clips the plate; not a lone pixel at full scale, which noise makes) the burden is
+#: turned: the fit is taken unless its residual is above the best other's divided by this. What a glare does to
+#: the dots near it is smooth over the plate, the lattice's cubic absorbs it and the residual does not see it
+#: (``test_beside_a_saturating_glare_auto_takes_the_fit_the_lattice_cannot_judge``: the Greenough rig with
+#: everything together, the point of symmetry 0.081 px from the lattice against the fit's 0.084, 0.13 px from the
+#: truth against 0.074)
 AUTO_FIT_RATIO = 0.95
 #: ``method="auto"`` lets the model ``fit`` lose this many dots and still compete (its residual then taken on
 #: the dots every competitor kept): it censors saturated pixels, and a dot whose whole surround is saturated
@@ -663,8 +660,8 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> Choice:
     if loc.fit is None:
         return Choice("moments", {m: float("nan") for m in METHODS}, _no_lattice(loc), "moments")
     radii = np.sqrt(loc.area / np.pi)
-    uneven = uneven_background(loc.clean, loc.xy, radii, loc.dark)
     reach = dot_reach(loc.clean, loc.xy, radii, loc.dark)
+    uneven = uneven_background(loc.clean, loc.xy, radii, loc.dark, reach)
     clipped = bool(saturated_dots(loc.clean, loc.xy, reach, regions=True).any())   # a glare, a clipped streak
     tabled = {m: _table(loc, m, anchoring["two_level"]) for m in METHODS if uneven or m != "fit"}
     kept, res = _kept_and_residuals({m: t[0] for m, t in tabled.items()})

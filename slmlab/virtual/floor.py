@@ -74,9 +74,16 @@ def fisher_floor(grad_x: np.ndarray, grad_y: np.ndarray, variance: np.ndarray, u
             rows += [np.ones(int(cell.sum())), (xx[cell] - x) / r, (yy[cell] - y) / r, amplitude[box][cell]]
         jac = np.array(rows, float)
         info = (jac * weight[box][cell]) @ jac.T
-        if np.linalg.det(info[:2, :2]) <= 0 or (amplitude is not None and np.linalg.cond(info) > 1e12):
-            continue   # no information on the centre (or none on the light, where it is unknown)
-        out[k] = np.sqrt(np.diag(np.linalg.inv(info))[:2])
+        if np.linalg.det(info[:2, :2]) <= 0:
+            continue   # no information on the centre
+        if amplitude is None:
+            out[k] = np.sqrt(np.diag(np.linalg.inv(info)))
+            continue
+        d = np.sqrt(np.maximum(np.diag(info), 1e-300))   # unit-free: the matrix scaled to a unit diagonal
+        scaled = info / np.outer(d, d)
+        if np.linalg.cond(scaled) > 1e10:
+            continue   # nothing tells the light from the centre (a cell with no background in view)
+        out[k] = np.sqrt(np.diag(np.linalg.inv(scaled))[:2]) / d[:2]
     return out
 
 

@@ -157,8 +157,12 @@ def check_extraction(t: Tables, size: str) -> None:
     claim(size != "full" or 0.8 * TARGET_RMS < floor < TARGET_RMS, name,
           "greenough", "the Greenough rig with everything together has a floor near the 0.05 px target (the floor "
           "module's docstring, 0.048 px, and the notebook's miss line)")
-    claim((ex["light_floor_px"] >= ex["floor_px"]).all(), name, "light_floor_px",
-          "the floor with the light unknown is nowhere below the floor with it known (more unknowns, less to know)")
+    rise = ex["light_floor_px"] / ex["floor_px"]
+    claim(((rise >= 1.0) & (rise <= 1.15)).all() and (size != "full" or (
+        rise[ex["rig"] == "greenough"].between(1.09, 1.15).all() and rise[ex["rig"] != "greenough"].max() <= 1.11)),
+        name, "light_floor_px", "the floor with the light unknown is 0-15 % above the floor with it known in every "
+        "cell (more unknowns, less to know); 10-14 % on the Greenough rig, 2-10 % on the others (the floor module's "
+        "docstring, the README)")
     light = float(together["light_floor_px"].iloc[0]) if len(together) == 1 else float("nan")
     claim(size != "full" or TARGET_RMS < light < 1.2 * floor, name, "greenough",
           "the Greenough rig with everything together: the 0.05 px target is below the floor with the light unknown "
