@@ -5,10 +5,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import slmlab
 from slmlab import models
+from slmlab.io import IMAGE_COLUMNS
 
 
 def test_registry_lists_only_real_models():
@@ -81,7 +83,7 @@ def _pinned_case(order, gaps_um, cv_um):
     judged = {c: list(v) for c, v in cv.items()}
     skipped = {}
     gap2 = lambda a, b: 1e-3 * gaps_um[frozenset((a, b))]  # noqa: E731
-    _drop_bent_pinned(judged, skipped, cv, [c for c in order if c in ("direct", "soloff")], 0, gap2, 6)
+    _drop_bent_pinned(judged, skipped, cv, [c for c in order if c in ("direct", "soloff")], 0, gap2, "the 6 calibrated depths")
     return {c for c in order if not np.isfinite(judged[c][0])}, skipped
 
 
@@ -96,3 +98,35 @@ def test_a_pinned_candidate_is_dropped_only_against_a_consensus_and_in_any_order
     assert _pinned_case(["direct", "soloff", "polynomial-3"], apart, cv)[0] == set()
     near = {**agree, frozenset(("direct", "polynomial-3")): 1.5}     # within 1.5x of one other: it stays
     assert _pinned_case(["direct", "soloff", "polynomial-3"], near, cv)[0] == set()
+
+
+def _cross(linear: np.ndarray, arms: dict, dots: int = 4) -> pd.DataFrame:
+    """Stage moves of a plate along ``arms`` (sequence -> commanded positions ``(n, 3)`` [mm]) through an affine
+    imaging ``linear`` ``(4, 3)`` [px/mm] (image = linear @ (stage + dot's offset)): the points' rows."""
+    rows = []
+    for seq, stage in arms.items():
+        for p, s in enumerate(stage, 1):
+            for r in range(dots):
+                for c in range(dots):
+                    w = linear @ (np.asarray(s, float) + [0.1 * c, 0.1 * r, 0.0])
+                    rows.append({"sequence": seq, "position": p, "stage_x_mm": s[0], "stage_y_mm": s[1],
+                                 "stage_z_mm": s[2], "row": r + 1, "col": c + 1, **dict(zip(IMAGE_COLUMNS, w))})
+    return pd.DataFrame(rows)
+
+
+def test_between_the_arms_of_stage_moves_images_superpose_two_arms_inside_the_cross():
+    """With affine imaging the superposed images are exactly those of the plate moved by both arms: each
+    synthesised point's stage position (solved back, one dot) lies off both arms and inside the cross's hull;
+    with the moves along one direction there is nothing between arms."""
+    from slmlab.models.folds import between_arms
+    rng = np.random.default_rng(3)
+    linear = rng.normal(0.0, 50.0, (4, 3))
+    t = np.linspace(-1.0, 1.0, 9)[:, None]
+    arms = {"X": t * [2.0, 0.0, 0.0], "Z": t * [0.0, 0.0, 0.5]}
+    q = between_arms(_cross(linear, arms, dots=1))
+    s, *_ = np.linalg.lstsq(linear, q.T, rcond=None)          # each point's stage position [mm]
+    np.testing.assert_allclose(linear @ s, q.T, atol=1e-9)     # the image of that position
+    assert len(q) == 4 * 3      # per quadrant the quarter-steps (1, 1), (1, 2), (2, 1): within 0.9 of the ends
+    assert np.all(np.abs(s[0]) > 0.2) and np.all(np.abs(s[2]) > 0.05) and np.allclose(s[1], 0.0, atol=1e-9)
+    assert np.all(np.abs(s[0]) / 2.0 + np.abs(s[2]) / 0.5 <= 0.9 + 1e-9)
+    assert between_arms(_cross(linear, {"X": arms["X"]})).shape == (0, 4)

@@ -21,7 +21,7 @@ from .frames import levels, world_positions
 
 __all__ = ["LEAVE_ONE_OUT_MAX", "DOT_FOLDS", "PLANES_FOR_PLANE_FOLDS", "position_folds", "row_folds", "dot_folds",
            "end_planes", "planes_held_out", "fold_description", "position_keys", "held_out_errors", "per_position_offsets",
-           "between_depths", "thin_dots"]
+           "between_depths", "between_arms", "thin_dots"]
 
 #: sequences with at most this many positions are cross-validated one position at a time
 LEAVE_ONE_OUT_MAX = 8
@@ -193,6 +193,39 @@ def between_depths(pts, world: np.ndarray, *, beyond: float = 0.25) -> np.ndarra
         ts = [0.5] + ([-beyond] if k == 0 else []) + ([1 + beyond] if k == len(depths) - 2 else [])
         out += [wa + t * (wb - wa) for t in ts]
     return np.vstack(out) if out else np.empty((0, 4))
+
+
+def between_arms(pts, *, reach: float = 0.9, max_points: int = 20_000) -> np.ndarray:
+    """Image coordinates ``(m, 4)`` [px] between the arms of a plate's stage moves (the paper's X, Y and Z
+    sequences, crossing near one position): each dot's image at the crossing ``b`` moved by one arm's
+    displacement and by another's at least 60° from it, superposed (``w_p + w_q - w_b``), where the two together
+    reach at most ``reach`` of the way to the arms' ends along their directions (inside the cross's hull, where
+    a user measures and no calibrated position lies). Not images of known points (perspective's cross terms are
+    second order), but the same inputs for every model, as :func:`between_depths`'s: where models that all fit
+    the arms disagree there, one of them bends between the arms in a way nothing measured. At most about
+    ``max_points`` (every ``k``-th pair of positions); empty where the moves keep to one direction."""
+    keys = pts["sequence"].astype(str).to_numpy() + ":" + pts["position"].astype(str).to_numpy()
+    pos, at = np.unique(keys, return_inverse=True)
+    dots, dot = np.unique(point_keys(pts["row"], pts["col"]), return_inverse=True)
+    w = np.full((len(pos), len(dots), 4), np.nan)
+    w[at.ravel(), dot.ravel()] = pts[IMAGE_COLUMNS].to_numpy(float)
+    stage = np.zeros((len(pos), 3))
+    stage[at.ravel()] = pts[["stage_x_mm", "stage_y_mm", "stage_z_mm"]].to_numpy(float)
+    b = int(np.argmin(np.linalg.norm(stage - np.median(stage, axis=0), axis=1)))
+    d = stage - stage[b]
+    n = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(n, 1e-12)[:, None]
+    moved = n > 1e-9 * max(float(n.max()), 1e-12)
+    along = np.abs(u @ u.T) > 0.99                      # the same direction (either way along an arm)
+    ends = np.array([n[along[i] & moved].max() if moved[i] else 1.0 for i in range(len(pos))])
+    i, j = np.triu_indices(len(pos), 1)
+    keep = moved[i] & moved[j] & (np.abs((u[i] * u[j]).sum(axis=1)) <= 0.5) & (n[i] / ends[i] + n[j] / ends[j] <= reach)
+    i, j = i[keep], j[keep]
+    if len(i) == 0:
+        return np.empty((0, 4))
+    step = max(1, int(np.ceil(len(i) * len(dots) / max_points)))
+    q = (w[i[::step]] + w[j[::step]] - w[b][None]).reshape(-1, 4)
+    return q[np.isfinite(q).all(axis=1)]
 
 
 def thin_dots(pts, max_rows: int) -> np.ndarray:
