@@ -50,6 +50,17 @@ class _Parser(argparse.ArgumentParser):
         return " ".join(parts[parts.index("slmlab") + 1:]) if "slmlab" in parts else ""
 
 
+def _seed(text: str) -> int:
+    """A seed: a whole number, 0 or more (NumPy's generators take no negative seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"invalid seed {text!r}: a whole number, 0 or more")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="python -m slmlab", description="Stereo light microscope vision modelling workbench.")
     sub = p.add_subparsers(dest="verb", required=True, parser_class=_Parser)
@@ -61,7 +72,7 @@ def _parser() -> argparse.ArgumentParser:
                    "stereo-piv, or KIND:SEED for one drawn at random (e.g. stereo-piv:7); needs --design")
     s.add_argument("--design", default=None, help="what the rig images: zstack-2 ... zstack-13, stage-sequences, "
                    "stepped-target, two-level, two-level-2z, two-level-3z, charuco-stack")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG (a rig's with its "
                    "camera's degradations, and a stage.csv naming them; not the stepped target)")
     g = s.add_mutually_exclusive_group()
@@ -93,7 +104,7 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true")
 
     gr = sub.add_parser("grip", help="one micro-gripping episode on the virtual microscope (paper §2)")
-    gr.add_argument("--seed", type=int, default=0)
+    gr.add_argument("--seed", type=_seed, default=0)
     gr.add_argument("--model", default=None, help="vision model (default: the most accurate)")
     gr.add_argument("--json", action="store_true", help="print the result as one JSON line (last)")
 
@@ -287,6 +298,10 @@ def main(argv: list[str] | None = None) -> int:
         if exc.path is None and _input_of(args) is not None:  # every message names the file it is about
             exc = SlmlabError(exc.reason, _input_of(args))
         print(f"slmlab: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as exc:  # the system refused a folder or a file (no permission, no space, /proc)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"slmlab: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_USER_ERROR
 
 

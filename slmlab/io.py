@@ -138,15 +138,28 @@ def _check_parent(path: Path) -> None:
         raise SlmlabError(f"the folder {parent} does not exist; create it or choose another output path", path)
     if path.exists() and path.is_dir():
         raise SlmlabError("is a folder; give a file name for the output", path)
+    if path.exists() and not path.is_file():
+        raise SlmlabError("is not a regular file (a device or a pipe); give a file name for the output", path)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder and a rename.
 
-    A failed or interrupted write never leaves a partial file nor replaces a good one.
+    A failed or interrupted write never leaves a partial file nor replaces a good one. A symbolic link is
+    written through (its target replaced, the link kept); a device or a pipe is refused. Where the system refuses
+    the write (no permission, no space, a name too long), :class:`SlmlabError` says why.
     """
     path = Path(path)
+    path = path.resolve() if path.is_symlink() else path
     _check_parent(path)
+    try:
+        _replace_with(path, data)
+    except OSError as exc:
+        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
+
+
+def _replace_with(path: Path, data: bytes) -> None:
+    """:func:`atomic_write_bytes`' temporary file and rename."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the mode a plain open would

@@ -137,10 +137,31 @@ def test_atomic_write_keeps_the_good_file(tmp_path, monkeypatch):
     def boom(src, dst):
         raise OSError("disk full")
     monkeypatch.setattr(os, "replace", boom)
-    with pytest.raises(OSError):
+    with pytest.raises(slmlab.SlmlabError, match="cannot be written: disk full"):   # the system's refusal, said
         atomic_write_text(target, "half")
     assert target.read_text() == "good\n"
     assert [p.name for p in tmp_path.iterdir()] == ["model.json"]
+
+
+def test_output_through_a_link_and_never_onto_a_device_or_pipe(tmp_path):
+    """A symbolic link is written through (the link kept); a pipe or a device is refused, not replaced by a file
+    (as root, --out /dev/full once replaced the device node)."""
+    (tmp_path / "target.json").write_text("old\n")
+    (tmp_path / "link.json").symlink_to("target.json")
+    atomic_write_text(tmp_path / "link.json", "new\n")
+    assert (tmp_path / "link.json").is_symlink() and (tmp_path / "target.json").read_text() == "new\n"
+    os.mkfifo(tmp_path / "pipe")
+    for path in (tmp_path / "pipe", "/dev/null"):
+        with pytest.raises(slmlab.SlmlabError, match="not a regular file"):
+            atomic_write_text(path, "x")
+    assert (tmp_path / "pipe").exists() and not (tmp_path / "pipe").is_file()
+
+
+def test_cli_system_refusals_and_a_negative_seed_are_exit_2_and_one_line(tmp_path):
+    for args in (["simulate", str(tmp_path / "s"), "--seed", "-1"], ["simulate", "/proc/slmlab-no-such"],
+                 ["simulate", str(tmp_path / ("x" * 300))]):
+        r = run_cli(*args)
+        assert r.returncode == 2 and r.stderr.startswith("slmlab: error: ") and r.stderr.count("\n") == 1, r.stderr
 
 
 def test_output_in_a_missing_folder(tmp_path):
