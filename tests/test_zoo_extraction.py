@@ -565,3 +565,30 @@ def test_a_two_level_plate_s_markers_are_read_where_blur_joins_them_to_a_dot_or_
     notes, vis = _two_level_errors(random_rig(kind, seed), TWO_LEVEL_CAMERAS[(kind, seed)], seed, tmp_path)
     assert any("numbering anchored in 4 image(s)" in n for n in notes), notes
     assert (vis["found"] & ~vis["good"]).sum() == 0 and vis["good"].mean() >= 0.99, vis["good"].mean()
+
+
+@pytest.mark.parametrize("size, dots", [((1600, 1200), 51), ((2448, 2048), 15)])
+def test_a_fine_plate_on_a_large_sensor_is_found_whole_and_numbered(size, dots):
+    """The sweep's reduction is set by the image's size: a clean 51 x 51 plate at a pitch of 21.6 px on a
+    1600 x 1200 sensor came out with 8 % of its dots, numbered wrongly and without a word; a 15 x 15 plate at
+    20 px on a 2448 x 2048 sensor without any. Looked for again less reduced (``FINE_PITCH_REDUCED_PX``), every
+    dot is found, on its true centre, and the numbering spans the plate."""
+    from slmlab.images.extract import choose_method
+    from slmlab.virtual.render import footprints, render_rig_view
+    from slmlab.virtual.rigs import with_plates
+    from slmlab.virtual.sessions import Session
+    from slmlab.virtual.simulate import simulate_set
+    share = 0.9 if dots == 51 else 14 * 20 / 2048
+    rig = with_plates(make_rig("greenough", image_size=size), moving_dots=dots, moving_share=share, tolerance_um=0.0)
+    cal = simulate_set(rig, Session(positions=(0, 0, 1), grid=False), seed=0)
+    p = rig.stage_to_microscope(cal.truth[["X_mm", "Y_mm", "Z_mm"]].to_numpy(),
+                                np.asarray(cal.meta["simulator"]["stage_origin_mm"]))
+    axes = rig.moving_plate.orientation()[:, :2]
+    deg = rig_degradations(rig.kind, "clean")
+    img = render_rig_view(rig, p, axes, rig.moving_plate.dot_diameter_mm, "l", deg, np.random.default_rng(1),
+                          np.random.default_rng(2))
+    truth, _ = footprints(rig, p, axes, "l")
+    found = choose_method(img, dots, dots, dark=deg.dark).dots.table      # auto, as extract_set's
+    assert len(found) == dots * dots and found["i1"].nunique() == dots and found["i2"].nunique() == dots
+    d = np.hypot(*(found[["w1", "w2"]].to_numpy()[:, None, :] - truth[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    assert np.sqrt(np.mean(d ** 2) / 2) < 0.05, np.sqrt(np.mean(d ** 2) / 2)

@@ -6,7 +6,8 @@ Nothing here depends on one threshold, one dot size or roundness, so that any pl
 gradients, vignetting, bright out-of-focus regions, streaks, hot pixels, a camera's text strip):
 
 1. **Local contrast** (:func:`local_contrast`): the image is reduced by a whole factor to at most
-   :data:`SWEEP_SIDE_PX` a side and smoothed (Gaussian, 1 reduced px); on a mesh of cells (1/16 of the
+   :data:`SWEEP_SIDE_PX` a side (less where the plate's pitch would be too fine for the sweep there:
+   :func:`slmlab.images.extract._detect_fine`) and smoothed (Gaussian, 1 reduced px); on a mesh of cells (1/16 of the
    image's smaller side) the background is the cells' median and the spread the half-width of the dot-free
    side of their histogram (median minus 16th percentile for bright dots); both meshes are median-filtered
    over 3 × 3 cells and interpolated. Window streaks, narrower than a cell, are the background's columns
@@ -203,7 +204,7 @@ class Contrast:
     def again(self, img: np.ndarray) -> "Contrast":
         """The contrast of ``img``, an image like the one this was taken of (the same with hot pixels
         replaced), on this one's mesh: the mesh's medians and spreads do not see a few pixels."""
-        small, r = _reduced(img)
+        small, r = _reduced(img, self.scale)
         z = outside_nil((small - self.background) / self.spread, self.picture)
         return Contrast(-z if self.dark else z, r, self.background, self.spread, -small if self.dark else small,
                         self.dark, self.picture, self.overlay)
@@ -249,12 +250,12 @@ def _mesh_statistics(small: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarr
     return tuple(up(m) for m in mesh)
 
 
-def _reduced(img: np.ndarray) -> tuple[np.ndarray, int]:
-    """The image reduced by :func:`reduction` (area average) and smoothed (Gaussian, 1 reduced px), and the
-    factor."""
+def _reduced(img: np.ndarray, scale: int | None = None) -> tuple[np.ndarray, int]:
+    """The image reduced by ``scale`` (by default :func:`reduction`; area average) and smoothed (Gaussian, 1
+    reduced px), and the factor."""
     f = img if img.dtype == np.float32 else img.astype(np.float32)
     h, w = f.shape
-    r = reduction(f.shape)
+    r = reduction(f.shape) if scale is None else max(1, int(scale))
     # crop to whole blocks so that the reduction is exactly r (reduced pixel i covers pixels r·i … r·i + r − 1)
     small = cv2.resize(f[:h // r * r, :w // r * r], (w // r, h // r), interpolation=cv2.INTER_AREA) if r > 1 else f
     return cv2.GaussianBlur(small, (0, 0), 1.0), r
@@ -277,8 +278,9 @@ class ContrastMesh:
     _again: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def of(cls, img: np.ndarray) -> "ContrastMesh":
-        small, r = _reduced(img)
+    def of(cls, img: np.ndarray, scale: int | None = None) -> "ContrastMesh":
+        """The mesh of ``img`` reduced by ``scale`` (by default :func:`reduction`)."""
+        small, r = _reduced(img, scale)
         cell = max(8, int(min(img.shape) / 16 / r))
         overlay = overlay_rows(img)
         picture = picture_rows(overlay, r, small.shape[0], cell)   # a camera's text strip left out
