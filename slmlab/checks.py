@@ -16,14 +16,21 @@ import pandas as pd
 from .errors import SlmlabError
 from .io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
 
-__all__ = ["image_motion", "check_stage_file", "MOVED_PX", "STILL_PX", "STAGE_SEQUENCES"]
+__all__ = ["image_motion", "check_stage_file", "MOVED_PX", "STILL_PX", "NOT_STAGE_SEQUENCES", "is_stage_sequence"]
 
 #: dots that moved more than this between two positions [px] did move (centroid noise is ≤ 0.1 px)
 MOVED_PX = 1.0
 #: dots that moved less than this [px] did not
 STILL_PX = 0.05
-#: sequences whose stage positions are commanded moves (``T``: poses held by hand; ``grid``: one pair)
-STAGE_SEQUENCES = ("X", "Y", "Z", "V")
+#: the sequences that are not commanded stage moves (``grid``: the large plate's one pair; ``T``: poses held by
+#: hand); every other label is (``X``, ``Y``, ``Z`` along the axes, any other a free set of stage positions)
+NOT_STAGE_SEQUENCES = ("grid", "T")
+
+
+def is_stage_sequence(label) -> bool:
+    """Whether the sequence ``label`` names commanded stage positions: ``X``, ``Y``, ``Z`` and any other label
+    (a free set of stage positions, ``V`` or another) but :data:`NOT_STAGE_SEQUENCES`."""
+    return str(label) not in NOT_STAGE_SEQUENCES
 
 
 def image_motion(seq: pd.DataFrame) -> pd.DataFrame:
@@ -57,7 +64,7 @@ def check_stage_file(cal: CalibrationSet) -> None:
       positions say how many pixels a millimetre makes;
     * a sequence named ``X``, ``Y`` or ``Z`` that moves mostly along another axis."""
     where = "points.csv" if cal.path is None else cal.path / "points.csv"
-    seqs = [s for s in cal.sequences if s in STAGE_SEQUENCES or (cal.known_target and s not in ("grid", "T"))]
+    seqs = [s for s in cal.sequences if is_stage_sequence(s)]
     motion = {s: image_motion(cal.sequence(s)) for s in seqs}
     both = pd.concat([m for m in motion.values() if len(m)], ignore_index=True) if any(len(m) for m in motion.values()) \
         else pd.DataFrame()

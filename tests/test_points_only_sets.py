@@ -56,3 +56,16 @@ def test_the_points_only_meta_json_has_none_of_the_imaging_details(charuco_point
     d, _ = charuco_points
     plate = json.loads((d / "meta.json").read_text())["plates"]["moving"]
     assert plate["pattern"] == "charuco" and "board" not in plate and "dot_diameter_mm" not in plate
+
+
+@pytest.mark.parametrize("label", ["V", "K", "stack"])
+def test_any_sequence_label_but_grid_and_t_is_a_free_set_of_stage_positions(tmp_path, label):
+    """The format names X, Y, Z for the axis sequences and 'any other label (e.g. V)' a free set of stage
+    positions: a Z stack relabelled calibrates as the Z stack does (only V did: K and stack were refused)."""
+    from slmlab.virtual.designs import simulate_design
+    from slmlab.virtual.rigs import rig_by_name
+    cal = simulate_design(rig_by_name("greenough:97"), "zstack-2", seed=1)
+    relabelled = CalibrationSet(cal.points.assign(sequence=cal.points["sequence"].replace("Z", label)), cal.meta)
+    w = cal.points[["wl1", "wl2", "wr1", "wr2"]].dropna().to_numpy()[::50]
+    np.testing.assert_allclose(slmlab.calibrate(relabelled, "direct").reconstruct(w),
+                               slmlab.calibrate(cal, "direct").reconstruct(w), atol=1e-9)

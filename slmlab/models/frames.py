@@ -18,15 +18,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..checks import STAGE_SEQUENCES
+from ..checks import is_stage_sequence
 from ..errors import SlmlabError
 from ..io import IMAGE_COLUMNS, STAGE_COLUMNS, CalibrationSet
 from ..linefit import point_keys
 
-__all__ = ["SEQUENCES", "STAGE", "plate_xy", "world_positions", "levels", "distinct_levels", "check_axes", "dot_labels"]
+__all__ = ["STAGE", "plate_xy", "world_positions", "levels", "distinct_levels", "check_axes", "dot_labels"]
 
-#: sequences whose stage positions are commanded moves
-SEQUENCES = STAGE_SEQUENCES
 STAGE = STAGE_COLUMNS
 
 
@@ -76,8 +74,8 @@ def world_positions(cal: CalibrationSet, mode: str = "auto"):
     rows, lateral = _moving_rows(sequence, seen, points["position"].to_numpy(), points[STAGE].to_numpy(float))
     pts = points[rows]
     if len(pts) == 0:
-        raise SlmlabError("needs sequences with stage motion (X, Y, Z or V) seen in both views, or a known target "
-                          "(x_mm, y_mm, z_mm)", cal.path)
+        raise SlmlabError("needs a sequence with stage motion (X, Y, Z or any label but grid and T) seen at two "
+                          "positions in both views, or a known target (x_mm, y_mm, z_mm)", cal.path)
     if mode == "auto":
         mode = "moves" if lateral else "zstack"
     if mode == "moves" and not lateral:
@@ -102,7 +100,7 @@ def _moving_rows(sequence, seen, position, stage) -> tuple[np.ndarray, bool]:
     lateral = False
     for code, name in enumerate(names):
         this = rows & (codes == code)
-        if name not in SEQUENCES or len(np.unique(position[this])) < 2:
+        if not is_stage_sequence(name) or len(np.unique(position[this])) < 2:
             rows &= ~this
             continue
         lateral |= bool((np.ptp(stage[this][:, :2], axis=0) > 0).any())
