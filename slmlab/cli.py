@@ -147,7 +147,10 @@ def _extract(a) -> int:
     points, notes = extract_set(a.cal_dir, method=a.method)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
-    old = read_set(a.cal_dir) if (a.cal_dir / "points.csv").exists() else None
+    try:   # the points.csv this replaces: only a simulated set's comparison with truth.csv reads it
+        old = read_set(a.cal_dir) if (a.cal_dir / "points.csv").exists() else None
+    except SlmlabError:
+        old = None
     write_csv(a.cal_dir / "points.csv", points)
     n_both = int(points[["wl1", "wr1"]].notna().all(axis=1).sum())
     print(f"wrote {a.cal_dir / 'points.csv'}: {len(points)} dots ({n_both} in both views)")
@@ -220,11 +223,12 @@ def _reconstruct(a) -> int:
     xyz[ok] = model.reconstruct(w[ok])
     for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
         df[c] = xyz[:, k]
-    if hasattr(model, "uncertainty"):  # 1-sigma per point, where the model provides it
-        sig = np.full((len(w), 3), np.nan)
+    if hasattr(model, "uncertainty"):  # 1-sigma per point, where the model provides it: a coordinate the
+        sig = np.full((len(w), 3), np.nan)  # default took from a model without one (the pinhole) has no column
         sig[ok] = model.uncertainty(w[ok])
         for k, c in enumerate(("sX_mm", "sY_mm", "sZ_mm")):
-            df[c] = sig[:, k]
+            if np.isfinite(sig[ok, k]).any():
+                df[c] = sig[:, k]
     write_csv(a.out, df)
     print(f"wrote {a.out}: {int(ok.sum())} of {len(w)} points reconstructed with {model.name}")
     return 0

@@ -409,3 +409,13 @@ def test_a_set_s_images_are_read_once_checked_and_kept_within_the_budget(tmp_pat
     assert images.read(paths["a"]) is a and images.held == 0 and not images.kept
     with pytest.raises(slmlab.SlmlabError, match="one size"):
         images.read(paths["c"])
+
+
+def test_a_stage_file_naming_one_view_s_images_only_is_refused(tmp_path):
+    """A misspelled header (``left`` for ``left_image``) left the left view without images: extract exited 0
+    with every wl empty. One of the two columns alone is an error that names the missing one."""
+    from slmlab.images.imageset import image_pairs
+    (tmp_path / "stage.csv").write_text("sequence,position,stage_x_mm,stage_y_mm,stage_z_mm,left,right_image\n"
+                                        "Z,1,0,0,0,a.png,b.png\n")
+    with pytest.raises(slmlab.SlmlabError, match="has right_image but no left_image column"):
+        image_pairs(tmp_path)

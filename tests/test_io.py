@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 import slmlab
@@ -232,3 +233,20 @@ def test_a_set_of_points_reads_without_what_only_extraction_needs(set_dir):
     plates["moving"]["board"], plates["moving"]["dot_diameter_mm"] = {"squares": [8, 8]}, -1
     meta.write_text(json.dumps({**good, "plates": plates}))
     expect_error(set_dir, "plates.moving.dot_diameter_mm must be a positive number")
+
+
+@pytest.mark.slow
+def test_reconstruct_writes_no_column_the_model_cannot_fill(tmp_path):
+    """Where the default took a coordinate from the pinhole pair, which gives no per-point uncertainty, that
+    coordinate's uncertainty column is left out, not written empty (sZ_mm was NaN in all 677 rows)."""
+    import pandas as pd
+    s, m, out = tmp_path / "s", tmp_path / "m.json", tmp_path / "r.csv"
+    for args in (["simulate", s, "--rig", "stereo-dic:1234", "--design", "two-level"], ["calibrate", s, "--out", m],
+                 ["reconstruct", m, s / "points.csv", "--out", out]):
+        r = run_cli(*map(str, args))
+        assert r.returncode == 0, r.stderr
+    sel = json.loads(m.read_text())["calibration"]["selection"]["choice"]
+    df = pd.read_csv(out)
+    added = [c for c in ("X_mm", "Y_mm", "Z_mm", "sX_mm", "sY_mm", "sZ_mm") if c in df]
+    assert "pinhole" in sel.values() and len(added) < 6, (sel, added)
+    assert np.isfinite(df[added].to_numpy()).all()

@@ -179,3 +179,14 @@ def test_a_z_stack_of_two_planes_calibrates_as_one_3d_view():
     assert mode == "zstack"
     e = model.reconstruct(rows[["wl1", "wl2", "wr1", "wr2"]].to_numpy(float)) - world
     assert np.all(np.sqrt(np.mean(e ** 2, axis=0)) < [0.002, 0.002, 0.008]), e
+
+
+def test_a_pinhole_pair_that_triangulates_to_nothing_is_a_candidate_that_cannot_calibrate():
+    """A hand-made two-level set whose views no pinhole pair describes triangulated to NaN, and the affine map to
+    the world ended in NumPy's LinAlgError (a traceback from calibrate): it is a SlmlabError, which the default
+    takes as a candidate that cannot calibrate the set."""
+    from slmlab.models.pinhole import fit_world_map
+    p = np.zeros((10, 3))
+    p[3] = np.nan
+    with pytest.raises(slmlab.SlmlabError, match="triangulates 1 of 10 dots to no point"):
+        fit_world_map(p, np.ones((10, 3)))

@@ -280,6 +280,9 @@ def test_simulate_a_rig_with_images_then_extract_through_the_command_line(tmp_pa
     assert good.mean() >= 0.99
     e = np.r_[vis.loc[good, "err1"], vis.loc[good, "err2"]]
     assert np.sqrt(np.mean(e ** 2)) <= 0.05
+    (d / "points.csv").write_text("sequence,position\nZ,1\n")   # a points.csv extract replaces need not be valid:
+    r = cli("extract", d)                                       # it failed after all its work, in six lines
+    assert r.returncode == 0 and "wrote" in r.stdout, r.stderr
 
 
 def test_a_stepped_target_is_not_rendered_and_nothing_is_written(tmp_path):

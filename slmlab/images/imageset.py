@@ -149,9 +149,13 @@ def _stage_table(path: Path) -> pd.DataFrame:
     df = read_csv_text(path, STAGE_FILE)
     require_columns(df, ["sequence", "position", *STAGE_COLUMNS], path, STAGE_FILE)
     out = sequence_position_stage(df, path)
-    for c in ("left_image", "right_image"):
-        if c in df.columns:
-            out[c] = df[c].astype(str).str.strip()
+    named = [c for c in ("left_image", "right_image") if c in df.columns]
+    if len(named) == 1:   # a misspelled header would leave a view without images and say nothing
+        other = ({"left_image", "right_image"} - set(named)).pop()
+        raise SlmlabError(f"has {named[0]} but no {other} column; give both (leave a cell empty where a view has "
+                          "no image)", path)
+    for c in named:
+        out[c] = df[c].astype(str).str.strip()
     dup = out.duplicated(["sequence", "position"], keep="first")
     if dup.any():
         k = int(np.flatnonzero(dup.to_numpy())[0])

@@ -428,6 +428,9 @@ def fit_world_map(p: np.ndarray, world: np.ndarray, kind: str = "affine") -> tup
     ``rigid`` (``A`` orthogonal, :func:`orthogonal_map`)."""
     if kind not in STAGE_MAPS:
         raise SlmlabError(f"unknown stage map {kind!r}; use one of {', '.join(STAGE_MAPS)}")
+    if not np.isfinite(p).all():   # a pinhole pair that does not describe the views triangulates to nothing
+        raise SlmlabError(f"the pinhole pair triangulates {int((~np.isfinite(p).all(axis=1)).sum())} of {len(p)} dots "
+                          "to no point (its calibration does not describe these views)")
     if kind == "affine":
         sol = np.linalg.lstsq(np.column_stack([p, np.ones(len(p))]), world, rcond=None)[0]
         return sol[:3].T, sol[3]
