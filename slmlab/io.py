@@ -218,6 +218,10 @@ def read_csv_text(path: Path, what: str) -> pd.DataFrame:
     return df
 
 
+#: the largest index a points file may hold (a position, row or column; beyond it no plate or stage is meant)
+INDEX_LIMIT = 1e9
+
+
 def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integer: bool = False,
              minimum: float | None = None) -> np.ndarray:
     """Parse one text column as numbers; name the first bad row (file line) and the column."""
@@ -241,6 +245,11 @@ def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integ
         if frac.any():
             k = int(np.flatnonzero(frac)[0])
             raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is not a whole number", path)
+        huge = ~np.isnan(vals) & (np.abs(vals) > INDEX_LIMIT)
+        if huge.any():   # beyond it the cast to an integer overflows (NumPy's warning, then a misleading error)
+            k = int(np.flatnonzero(huge)[0])
+            raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is too large for an index "
+                              f"(at most {INDEX_LIMIT:.0e})", path)
     if minimum is not None:
         low = ~np.isnan(vals) & (vals < minimum)
         if low.any():

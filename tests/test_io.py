@@ -72,6 +72,18 @@ def test_non_finite_stage_value(set_dir, value):
     expect_error(set_dir, "row 4", "stage_x_mm")
 
 
+def test_an_index_too_large_for_an_integer_is_named(set_dir):
+    """A position of 1e20 overflowed the cast to an integer: NumPy's warning on stderr, then an error about a
+    duplicate row that was not one."""
+    def edit(lines):
+        cells = lines[3].split(",")
+        cells[1] = "100000000000000000001"  # position
+        lines[3] = ",".join(cells)
+        return lines
+    rewrite_points(set_dir, edit)
+    expect_error(set_dir, "row 4", "column position", "too large for an index")
+
+
 def test_missing_column(set_dir):
     rewrite_points(set_dir, lambda lines: [line.rsplit(",", 1)[0] for line in lines])
     expect_error(set_dir, "lacks column", "wr2")
