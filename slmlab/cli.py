@@ -23,7 +23,7 @@ from .errors import SlmlabError
 from .gripping import grip
 from .images.centres import METHODS
 from .images.imageset import extract_set
-from .io import IMAGE_COLUMNS, read_points, read_set, write_csv, write_set
+from .io import IMAGE_COLUMNS, atomic_folder, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
 from .models.auto import selection_table
 from .paper.evaluation import evaluate
@@ -133,12 +133,13 @@ def _simulate(a) -> int:
         cal = simulate_set(preset(a.preset), session, seed=a.seed)
     if a.images:
         check_renderable(cal)
-    write_set(a.out_dir, cal)
+    with atomic_folder(a.out_dir) as folder:   # a new set is written whole or not at all
+        write_set(folder, cal)
+        written = render_set(cal, folder) if a.images else []
     n = cal.points[["wl1", "wr1"]].notna().all(axis=1).sum()
     print(f"wrote {a.out_dir}: {len(cal.points)} rows ({n} seen in both views), "
           f"sequences {', '.join(cal.sequences)}")
     if a.images:
-        written = render_set(cal, a.out_dir)
         print(f"rendered {len(written)} images into {a.out_dir / 'images'}")
     return 0
 

@@ -12,7 +12,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from io import StringIO
 from pathlib import Path
@@ -36,6 +38,7 @@ __all__ = [
     "write_csv",
     "atomic_write_text",
     "atomic_write_bytes",
+    "atomic_folder",
     "json_text",
     "read_csv_text",
     "read_meta",
@@ -173,6 +176,29 @@ def _replace_with(path: Path, data: bytes) -> None:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        raise
+
+
+@contextmanager
+def atomic_folder(path: str | os.PathLike):
+    """A folder written whole or not at all: yields a temporary folder beside ``path`` that is renamed to it when
+    the block ends, and removed where the block fails (no space, a file-size limit, an interrupted render: a half
+    set is never left). Where ``path`` exists already, its own files are written in place, each atomically."""
+    path = Path(path)
+    if path.exists() or not path.parent.exists():   # write_set says what is wrong with such a path
+        yield path
+        return
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_UMASK)   # mkdtemp makes 0700; give the folder the mode a plain mkdir would
+        os.replace(tmp, path)
+    except SlmlabError as exc:   # named where the user asked for it, not in the temporary folder
+        shutil.rmtree(tmp, ignore_errors=True)
+        where = exc.path and str(exc.path).replace(str(tmp), str(path), 1)
+        raise SlmlabError(exc.reason, where) from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 

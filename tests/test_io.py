@@ -51,36 +51,31 @@ def test_empty_and_header_only(set_dir):
     expect_error(set_dir, "no data rows")
 
 
-def test_non_numeric_value_names_row_and_column(set_dir):
+def set_cell(set_dir, line: int, column: int, value: str):
+    """points.csv's cell at file line index ``line`` (0: the header) and ``column`` set to ``value``."""
     def edit(lines):
-        cells = lines[5].split(",")
-        cells[7] = "abc"  # wl1
-        lines[5] = ",".join(cells)
+        cells = lines[line].split(",")
+        cells[column] = value
+        lines[line] = ",".join(cells)
         return lines
     rewrite_points(set_dir, edit)
+
+
+def test_non_numeric_value_names_row_and_column(set_dir):
+    set_cell(set_dir, 5, 7, "abc")  # wl1
     expect_error(set_dir, "row 6", "column wl1", "not a number")
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", ""])
 def test_non_finite_stage_value(set_dir, value):
-    def edit(lines):
-        cells = lines[3].split(",")
-        cells[2] = value  # stage_x_mm
-        lines[3] = ",".join(cells)
-        return lines
-    rewrite_points(set_dir, edit)
+    set_cell(set_dir, 3, 2, value)  # stage_x_mm
     expect_error(set_dir, "row 4", "stage_x_mm")
 
 
 def test_an_index_too_large_for_an_integer_is_named(set_dir):
     """A position of 1e20 overflowed the cast to an integer: NumPy's warning on stderr, then an error about a
     duplicate row that was not one."""
-    def edit(lines):
-        cells = lines[3].split(",")
-        cells[1] = "100000000000000000001"  # position
-        lines[3] = ",".join(cells)
-        return lines
-    rewrite_points(set_dir, edit)
+    set_cell(set_dir, 3, 1, "100000000000000000001")  # position
     expect_error(set_dir, "row 4", "column position", "too large for an index")
 
 
@@ -262,3 +257,22 @@ def test_reconstruct_writes_no_column_the_model_cannot_fill(tmp_path):
     added = [c for c in ("X_mm", "Y_mm", "Z_mm", "sX_mm", "sY_mm", "sZ_mm") if c in df]
     assert "pinhole" in sel.values() and len(added) < 6, (sel, added)
     assert np.isfinite(df[added].to_numpy()).all()
+
+
+def test_a_new_set_is_written_whole_or_not_at_all(tmp_path):
+    """Under a file-size limit simulate left a folder holding points.csv alone (and a traceback): the set is
+    written in a temporary folder beside it and renamed when whole, the error one line naming the set's file."""
+    out = tmp_path / "sp"
+    r = subprocess.run(["bash", "-c", f"ulimit -f 200; exec {sys.executable} -m slmlab simulate {out} --rig "
+                        "stereo-piv:7 --design zstack-2"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and f"{out}/" in r.stderr, r.stderr
+    assert list(tmp_path.iterdir()) == []
+    assert run_cli("simulate", str(out), "--rig", "stereo-piv:7", "--design", "zstack-2").returncode == 0
+    assert {p.name for p in out.iterdir()} == {"points.csv", "truth.csv", "meta.json"}
+    assert oct(out.stat().st_mode & 0o777) == oct(0o777 & ~_umask())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
