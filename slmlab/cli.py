@@ -150,8 +150,10 @@ def _extract(a) -> int:
         print(f"note: {note}", file=sys.stderr)
     try:   # the points.csv this replaces: only a simulated set's comparison with truth.csv reads it
         old = read_set(a.cal_dir) if (a.cal_dir / "points.csv").exists() else None
-    except SlmlabError:
+    except SlmlabError as exc:
         old = None
+        print(f"note: the points.csv replaced could not be read ({exc.reason}); nothing compared with it",
+              file=sys.stderr)
     write_csv(a.cal_dir / "points.csv", points)
     n_both = int(points[["wl1", "wr1"]].notna().all(axis=1).sum())
     print(f"wrote {a.cal_dir / 'points.csv'}: {len(points)} dots ({n_both} in both views)")
@@ -224,14 +226,17 @@ def _reconstruct(a) -> int:
     xyz[ok] = model.reconstruct(w[ok])
     for k, c in enumerate(("X_mm", "Y_mm", "Z_mm")):
         df[c] = xyz[:, k]
-    if hasattr(model, "uncertainty"):  # 1-sigma per point, where the model provides it: a coordinate the
-        sig = np.full((len(w), 3), np.nan)  # default took from a model without one (the pinhole) has no column
+    empty = []
+    if hasattr(model, "uncertainty"):  # 1-sigma per point, where the model provides it
+        sig = np.full((len(w), 3), np.nan)
         sig[ok] = model.uncertainty(w[ok])
         for k, c in enumerate(("sX_mm", "sY_mm", "sZ_mm")):
-            if np.isfinite(sig[ok, k]).any():
-                df[c] = sig[:, k]
+            df[c] = sig[:, k]
+        empty = [c for k, c in enumerate(("sX_mm", "sY_mm", "sZ_mm")) if ok.any() and not np.isfinite(sig[ok, k]).any()]
     write_csv(a.out, df)
     print(f"wrote {a.out}: {int(ok.sum())} of {len(w)} points reconstructed with {model.name}")
+    if empty:   # a coordinate the default took from a model without one (the pinhole pair)
+        print(f"note: {', '.join(empty)} left empty: the model gives no per-point uncertainty there")
     return 0
 
 

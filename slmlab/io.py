@@ -153,7 +153,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     the write (no permission, no space, a name too long), :class:`SlmlabError` says why.
     """
     path = Path(path)
-    path = path.resolve() if path.is_symlink() else path
+    if path.is_symlink():
+        try:
+            path = path.resolve(strict=False)
+        except (RuntimeError, OSError):   # a loop of links (Python 3.11 raises RuntimeError)
+            raise SlmlabError("is a symbolic link that leads nowhere (a loop); give a file name for the output",
+                              path) from None
     _check_parent(path)
     try:
         _replace_with(path, data)
@@ -188,7 +193,10 @@ def atomic_folder(path: str | os.PathLike):
     if path.exists() or not path.parent.exists():   # write_set says what is wrong with such a path
         yield path
         return
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as exc:
+        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_UMASK)   # mkdtemp makes 0700; give the folder the mode a plain mkdir would
@@ -197,6 +205,9 @@ def atomic_folder(path: str | os.PathLike):
         shutil.rmtree(tmp, ignore_errors=True)
         where = exc.path and str(exc.path).replace(str(tmp), str(path), 1)
         raise SlmlabError(exc.reason, where) from None
+    except OSError as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -158,6 +158,9 @@ def test_output_through_a_link_and_never_onto_a_device_or_pipe(tmp_path):
     (tmp_path / "link.json").symlink_to("target.json")
     atomic_write_text(tmp_path / "link.json", "new\n")
     assert (tmp_path / "link.json").is_symlink() and (tmp_path / "target.json").read_text() == "new\n"
+    (tmp_path / "loop").symlink_to("loop")
+    with pytest.raises(slmlab.SlmlabError, match="leads nowhere"):
+        atomic_write_text(tmp_path / "loop", "x")
     os.mkfifo(tmp_path / "pipe")
     for path in (tmp_path / "pipe", "/dev/null"):
         with pytest.raises(slmlab.SlmlabError, match="not a regular file"):
@@ -170,6 +173,7 @@ def test_cli_system_refusals_and_a_negative_seed_are_exit_2_and_one_line(tmp_pat
                  ["simulate", str(tmp_path / ("x" * 300))]):
         r = run_cli(*args)
         assert r.returncode == 2 and r.stderr.startswith("slmlab: error: ") and r.stderr.count("\n") == 1, r.stderr
+        assert ".tmp" not in r.stderr and (args[1] in r.stderr or "seed" in r.stderr), r.stderr   # the user's path
 
 
 def test_output_in_a_missing_folder(tmp_path):
@@ -243,9 +247,10 @@ def test_a_set_of_points_reads_without_what_only_extraction_needs(set_dir):
 
 
 @pytest.mark.slow
-def test_reconstruct_writes_no_column_the_model_cannot_fill(tmp_path):
+def test_reconstruct_says_which_uncertainty_the_model_cannot_give(tmp_path):
     """Where the default took a coordinate from the pinhole pair, which gives no per-point uncertainty, that
-    coordinate's uncertainty column is left out, not written empty (sZ_mm was NaN in all 677 rows)."""
+    coordinate's uncertainty column is empty (sZ_mm in all 677 rows, without a word): reconstruct says so. The
+    columns stay, for every reader of reconstruct's output."""
     import pandas as pd
     s, m, out = tmp_path / "s", tmp_path / "m.json", tmp_path / "r.csv"
     for args in (["simulate", s, "--rig", "stereo-dic:1234", "--design", "two-level"], ["calibrate", s, "--out", m],
@@ -254,9 +259,10 @@ def test_reconstruct_writes_no_column_the_model_cannot_fill(tmp_path):
         assert r.returncode == 0, r.stderr
     sel = json.loads(m.read_text())["calibration"]["selection"]["choice"]
     df = pd.read_csv(out)
-    added = [c for c in ("X_mm", "Y_mm", "Z_mm", "sX_mm", "sY_mm", "sZ_mm") if c in df]
-    assert "pinhole" in sel.values() and len(added) < 6, (sel, added)
-    assert np.isfinite(df[added].to_numpy()).all()
+    empty = [c for c in ("sX_mm", "sY_mm", "sZ_mm") if df[c].isna().all()]
+    assert [f"s{c}_mm" for c, k in sel.items() if k == "pinhole"] == empty and empty, (sel, empty)
+    assert f"note: {', '.join(empty)} left empty" in r.stdout, r.stdout
+    assert np.isfinite(df[["X_mm", "Y_mm", "Z_mm"]].to_numpy()).all()
 
 
 def test_a_new_set_is_written_whole_or_not_at_all(tmp_path):

@@ -122,10 +122,12 @@ def test_between_the_arms_of_stage_moves_images_superpose_two_arms_inside_the_cr
     rng = np.random.default_rng(3)
     linear = rng.normal(0.0, 50.0, (4, 3))
     t = np.linspace(-1.0, 1.0, 9)[:, None]
-    arms = {"X": t * [2.0, 0.0, 0.0], "Z": t * [0.0, 0.0, 0.5]}
+    centre = np.array([3.0, 4.0, 5.0])                         # the crossing's own image counts (w_p + w_q - w_b)
+    arms = {"X": centre + t * [2.0, 0.0, 0.0], "Z": centre + t * [0.0, 0.0, 0.5]}
     q = between_arms(_cross(linear, arms, dots=1))
     s, *_ = np.linalg.lstsq(linear, q.T, rcond=None)          # each point's stage position [mm]
     np.testing.assert_allclose(linear @ s, q.T, atol=1e-9)     # the image of that position
+    s = s - centre[:, None]
     assert len(q) == 4 * 3      # per quadrant the quarter-steps (1, 1), (1, 2), (2, 1): within 0.9 of the ends
     assert np.all(np.abs(s[0]) > 0.2) and np.all(np.abs(s[2]) > 0.05) and np.allclose(s[1], 0.0, atol=1e-9)
     assert np.all(np.abs(s[0]) / 2.0 + np.abs(s[2]) / 0.5 <= 0.9 + 1e-9)

@@ -529,9 +529,12 @@ def _gap(recon: dict[str, np.ndarray]):
     ``a``'s reconstructions ``recon`` of the same image points, net of the affine map between the two (a frame,
     not a bend)."""
     def gap(a: str, b: str, k: int) -> float:
-        x = np.column_stack([recon[a], np.ones(len(recon[a]))])
-        coef, *_ = np.linalg.lstsq(x, recon[b][:, k], rcond=None)
-        return float(np.sqrt(np.mean((x @ coef - recon[b][:, k]) ** 2)))
+        ok = np.isfinite(recon[a]).all(axis=1) & np.isfinite(recon[b][:, k])   # a point one cannot reconstruct
+        if ok.sum() < 5:                                                        # says nothing of a bend
+            return float("nan")
+        x = np.column_stack([recon[a][ok], np.ones(int(ok.sum()))])
+        coef, *_ = np.linalg.lstsq(x, recon[b][ok, k], rcond=None)
+        return float(np.sqrt(np.mean((x @ coef - recon[b][ok, k]) ** 2)))
     return gap
 
 

@@ -485,9 +485,9 @@ def _held_back_dots_errors(view: dict, pts: pd.DataFrame, world: np.ndarray, siz
     for v in VARIANTS:
         try:
             stereo, _ = calibrate_target(train, size, v, fix_focal=fix_focal, start=start, spread=False)
-        except (cv2.error, SlmlabError):
+            a, t = fit_world_map(stereo.triangulate(w[~held]), world[~held], stage_map)
+        except (cv2.error, SlmlabError):   # a variant that triangulates to nothing scores inf, the others stand
             continue
-        a, t = fit_world_map(stereo.triangulate(w[~held]), world[~held], stage_map)
         scores[v] = float(np.sqrt(np.mean((stereo.triangulate(w[held]) @ a.T + t - world[held]) ** 2)))
     return scores
 
