@@ -1,5 +1,7 @@
 """The traditional pinhole stereo model (OpenCV): calibration, conditioning, stage maps, real images."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -30,6 +32,8 @@ def test_pinhole_model_file_round_trip_and_reports(small_sets, tmp_path):
     assert m.options["variant"] == "standard" and m.options["stage_map"] == "affine"
     assert np.isfinite(m.calibration["focal_std_px"]).all() and m.calibration["stereo_option"]
     back = slmlab.load_model(m.save(tmp_path / "p.json"))
+    saved = json.loads((tmp_path / "p.json").read_text())
+    assert set(saved["parameters"]) <= set(saved["units"]), set(saved["parameters"]) - set(saved["units"])  # each its unit
     w = val.sequence("Z")[["wl1", "wl2", "wr1", "wr2"]].dropna().to_numpy()
     np.testing.assert_allclose(back.reconstruct(w), m.reconstruct(w), atol=1e-9)
 

@@ -516,7 +516,9 @@ class PinholeModel(Model):
     summary = ("traditional stereo pinhole model (OpenCV calibrateCamera + stereoCalibrate, triangulation; a map to "
                "the stage, or a known target's DLT and world)")
     accuracy_rank = 50
-    units = {"K1": "px", "K2": "px", "T": "mm", "R": "-", "A": "-", "t": "mm"}
+    units = {"K1": "px", "K2": "px", "d1": "- (OpenCV's distortion coefficients, dimensionless)",
+             "d2": "- (OpenCV's distortion coefficients, dimensionless)", "T": "mm", "R": "-", "A": "-", "t": "mm",
+             "rms_px": "px", "f_std_px": "px", "variant": "- (a name)", "stereo_option": "- (a name)"}
 
     def __init__(self, stereo: StereoPinhole, a: np.ndarray, t: np.ndarray, **kw):
         super().__init__(**kw)
