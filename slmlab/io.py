@@ -255,8 +255,9 @@ def read_csv_text(path: Path, what: str) -> pd.DataFrame:
     return df
 
 
-#: the largest index a points file may hold (a position, row or column; beyond it no plate or stage is meant)
-INDEX_LIMIT = 1e9
+#: the largest index a points file may hold (a position, row or column; beyond it no plate or stage is meant, and
+#: the keys that join a row and a column, or a sequence and a position, would run into each other)
+INDEX_LIMIT = 99_999
 
 
 def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integer: bool = False,
@@ -286,7 +287,7 @@ def _numeric(df: pd.DataFrame, col: str, path: Path, *, allow_empty: bool, integ
         if huge.any():   # beyond it the cast to an integer overflows (NumPy's warning, then a misleading error)
             k = int(np.flatnonzero(huge)[0])
             raise SlmlabError(f"row {k + 2}, column {col}: {df[col].iloc[k]!r} is too large for an index "
-                              f"(at most {INDEX_LIMIT:.0e})", path)
+                              f"(at most {INDEX_LIMIT})", path)
     if minimum is not None:
         low = ~np.isnan(vals) & (vals < minimum)
         if low.any():

@@ -72,11 +72,12 @@ def test_non_finite_stage_value(set_dir, value):
     expect_error(set_dir, "row 4", "stage_x_mm")
 
 
-def test_an_index_too_large_for_an_integer_is_named(set_dir):
+@pytest.mark.parametrize("column, name, value", [(1, "position", "100000000000000000001"), (6, "col", "100000")])
+def test_an_index_too_large_for_an_integer_is_named(set_dir, column, name, value):
     """A position of 1e20 overflowed the cast to an integer: NumPy's warning on stderr, then an error about a
-    duplicate row that was not one."""
-    set_cell(set_dir, 3, 1, "100000000000000000001")  # position
-    expect_error(set_dir, "row 4", "column position", "too large for an index")
+    duplicate row that was not one. A column of 100000 would share its key with the next row's first dot."""
+    set_cell(set_dir, 3, column, value)
+    expect_error(set_dir, "row 4", f"column {name}", "too large for an index")
 
 
 def test_missing_column(set_dir):

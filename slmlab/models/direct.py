@@ -197,7 +197,7 @@ def _rows(cal: CalibrationSet, mode: str):
     seq_code = pts["sequence"].map(codes).to_numpy()
     positions = seq_code * 1_000_000 + pts["position"].to_numpy()
     if mode == "moves":
-        groups = point_keys(pts["row"], pts["col"]) * 16 + seq_code
+        groups = point_keys(pts["row"], pts["col"]) * max(16, len(codes)) + seq_code   # a dot per sequence
     else:  # one group: the world position is known up to one common constant
         groups = np.zeros(len(pts), np.int64)
     return pts, groups, positions, target, mode
@@ -522,7 +522,7 @@ def fit_direct(cal: CalibrationSet, degree: int | None = None, max_degree: int =
         raise SlmlabError(f"variables must be 3, 4 or 'auto', not {variables!r}")
     pts, groups, positions, target, mode = _rows(cal, mode)
     w = pts[IMAGE_COLUMNS].to_numpy(float)
-    dots = point_keys(pts["row"], pts["col"]) * 16 + positions // 1_000_000
+    dots = point_keys(pts["row"], pts["col"]) * max(16, int(positions.max()) // 1_000_000 + 1) + positions // 1_000_000
     known_depth = target[:, 2] if mode == "target" else None
     in_z = (pts["sequence"] == "Z").to_numpy()
     frames = {3: fit_frame(w, dots, in_z, depth=known_depth)}
