@@ -163,7 +163,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     try:
         _replace_with(path, data)
     except OSError as exc:
-        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
+        raise _refused(exc, path) from None
 
 
 def _replace_with(path: Path, data: bytes) -> None:
@@ -184,6 +184,11 @@ def _replace_with(path: Path, data: bytes) -> None:
         raise
 
 
+def _refused(exc: OSError, path: Path) -> SlmlabError:
+    """The system's refusal to write ``path`` (no permission, no space, a name too long), as a user's error."""
+    return SlmlabError(f"cannot be written: {exc.strerror or exc}", path)
+
+
 @contextmanager
 def atomic_folder(path: str | os.PathLike):
     """A folder written whole or not at all: yields a temporary folder beside ``path`` that is renamed to it when
@@ -196,7 +201,7 @@ def atomic_folder(path: str | os.PathLike):
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     except OSError as exc:
-        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
+        raise _refused(exc, path) from None
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_UMASK)   # mkdtemp makes 0700; give the folder the mode a plain mkdir would
@@ -207,7 +212,7 @@ def atomic_folder(path: str | os.PathLike):
         raise SlmlabError(exc.reason, where) from None
     except OSError as exc:
         shutil.rmtree(tmp, ignore_errors=True)
-        raise SlmlabError(f"cannot be written: {exc.strerror or exc}", path) from None
+        raise _refused(exc, path) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
