@@ -47,8 +47,8 @@ from .streaks import clear_of_dots, clipped_band, strip_columns
 __all__ = ["METHODS", "SECTORS", "STREAKINESS", "COHERENCE", "COHERENCE_SHARE", "coherent", "DEPTH_SLOPE",
            "STREAK_SHARE", "STREAK_EFFECT", "FIT_NONLINEAR", "FIT_PARAMETERS",
            "STREAK_DEPTH", "Flat", "flatten", "profile_radius", "dot_reach", "flat_patches", "streak_mask",
-           "saturation", "saturated_dots", "uneven_background", "refine_moments", "fit_dots", "refine_fit", "refine_ellipse",
-           "refine_edges", "refine_symmetry", "refine"]
+           "saturation", "saturated_dots", "outline_cut", "uneven_background", "light_pull_px", "refine_moments",
+           "fit_dots", "refine_fit", "refine_ellipse", "refine_edges", "refine_symmetry", "refine"]
 
 #: the centre estimators, by name
 METHODS = ("moments", "ellipse", "edges", "fit", "symmetry")
@@ -92,7 +92,10 @@ class Flat:
     :func:`slmlab.images.streaks.strip_columns`) where the dot's
     ``streakiness`` ``(n,)``, the mean square of those offsets over their noise variance (about 1 or less
     without streaks), is above :data:`STREAKINESS` and their ``coherence`` ``(n,)``, the correlation of
-    the offsets above the dot with those below it, is that of a streak (:func:`coherent`; else zero)."""
+    the offsets above the dot with those below it, is that of a streak (:func:`coherent`; else zero).
+    ``bounds`` ``(n, 4)``: the offsets of the image's first and last columns and rows from ``base`` (pixels beyond
+    them are the edge's copies: the plane of a dot whose ring leaves the image is fitted on the ring's pixels on
+    it, and :func:`_centroid`'s window is kept symmetric inside them)."""
 
     base: np.ndarray
     ox: np.ndarray
@@ -102,6 +105,7 @@ class Flat:
     column: np.ndarray | None = None
     streakiness: np.ndarray | None = None
     coherence: np.ndarray | None = None
+    bounds: np.ndarray | None = None
 
 
 def coherent(chi: np.ndarray, rho: np.ndarray) -> np.ndarray:
@@ -132,6 +136,13 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     ring = (d > ring_in) & (d < ring_in + 4)
     design = np.column_stack([np.ones(int(ring.sum())), ox[ring], oy[ring]])
     coef = p[:, ring] @ np.linalg.pinv(design).T.astype(np.float32)          # (n, 3)
+    h, w = img.shape
+    bounds = np.column_stack([-base[:, 0], w - 1 - base[:, 0], -base[:, 1], h - 1 - base[:, 1]])
+    for k in np.flatnonzero((bounds[:, [0, 2]] > -half).any(axis=1) | (bounds[:, [1, 3]] < half).any(axis=1)):
+        seen = ((ox[ring] >= bounds[k, 0]) & (ox[ring] <= bounds[k, 1]) & (oy[ring] >= bounds[k, 2])
+                & (oy[ring] <= bounds[k, 3]))
+        if seen.sum() >= 12:   # the ring on the image, not the edge's copies (which repeat the dot's blur)
+            coef[k] = np.linalg.lstsq(design[seen], p[k][ring][seen], rcond=None)[0]
     column, chi, rho = None, None, None
     if columns is not None:   # the columns are measured on a strip as wide as the whole patch
         sat = saturation(img)
@@ -145,7 +156,7 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
         p, ox, oy = p[:, sl, sl], ox[sl, sl], oy[sl, sl]
         column = None if column is None else column[:, sl]
     con = _contrast(p, _plane(coef, ox[None], oy[None]), dark, None if column is None else column[:, None, :])
-    return Flat(base, ox, oy, con, coef, column, chi, rho)
+    return Flat(base, ox, oy, con, coef, column, chi, rho, bounds)
 
 
 def _clipped_patches_alone(column: np.ndarray, p: np.ndarray, plane: np.ndarray, outside: np.ndarray, sat: float
@@ -218,7 +229,7 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     flat, reach = flat_patches(img, c, radii, dark, reach, columns, clipped_alone=clipped_alone)
     con, ox, oy = _on_disk(flat.contrast, flat, reach)
     for _ in range(iterations):
-        c = flat.base + _centroid(con, ox, oy, c - flat.base, reach)
+        c = flat.base + _centroid(con, ox, oy, c - flat.base, reach, flat.bounds)
     return c
 
 
@@ -230,14 +241,25 @@ def _on_disk(contrast: np.ndarray, flat: Flat, reach: float) -> tuple[np.ndarray
     return contrast[:, disk], flat.ox[disk], flat.oy[disk]
 
 
-def _centroid(con: np.ndarray, ox: np.ndarray, oy: np.ndarray, f: np.ndarray, reach: float) -> np.ndarray:
+def _centroid(con: np.ndarray, ox: np.ndarray, oy: np.ndarray, f: np.ndarray, reach: float,
+              bounds: np.ndarray | None = None) -> np.ndarray:
     """One centroid step of :func:`refine_moments`: the centroid ``(n, 2)`` [px from each patch's centre pixel]
     of contrasts ``con`` ``(n, P)`` at pixel offsets ``ox, oy`` ``(P,)`` within an anti-aliased disk of radius
-    ``reach + 0.5`` [px] around ``f`` ``(n, 2)``. float32 is ample here: sums of a few thousand terms of size
-    <= reach, relative error ~1e-6 px."""
+    ``reach + 0.5`` [px] around ``f`` ``(n, 2)``; where the disk leaves the image (``bounds``, :class:`Flat`),
+    also within a box about ``f`` as far as the nearer edge on each axis: a window symmetric about the estimate,
+    so that the blur the edge cuts off one side is left off the other too and a symmetric dot's centroid is not
+    pulled (the edge's copied pixels pulled a defocused dot a pixel inside the edge 0.09 px towards it). float32
+    is ample here: sums of a few thousand terms of size <= reach, relative error ~1e-6 px."""
     f = f.astype(np.float32)
     win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
                   0.0, 1.0)
+    if bounds is not None:
+        half = np.minimum(np.abs(f[:, [0, 0, 1, 1]] - bounds), np.float32(reach + 1.5))   # to each edge [px]
+        mx, my = half[:, :2].min(axis=1), half[:, 2:].min(axis=1)
+        cut = np.flatnonzero((mx < reach + 1) | (my < reach + 1))
+        if len(cut):
+            win[cut] *= (np.clip(mx[cut, None] + 0.5 - np.abs(ox[None, :] - f[cut, 0, None]), 0.0, 1.0)
+                         * np.clip(my[cut, None] + 0.5 - np.abs(oy[None, :] - f[cut, 1, None]), 0.0, 1.0))
     w = con * win
     s = w.sum(axis=1, dtype=np.float64)
     s = np.where(np.abs(s) > 1e-9, s, 1e-9)
@@ -699,6 +721,44 @@ def saturated_dots(img: np.ndarray, centres: np.ndarray, reach: float, *, region
     return p.any(axis=(1, 2))
 
 
+def outline_cut(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool,
+                overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Whether each dot's outline ``(n,)`` reaches the picture's edge: a pixel of its first or last column, or of
+    its first or last row clear of a camera's text ``overlay`` (rows at the top and bottom), within 1.4 ``radii``
+    + 2 px of the dot's centre ``(n, 2)`` [px] holds at least half the dot's core contrast (flat-fielded as the centre
+    estimators read it, :func:`flatten`; the mean of three pixels along the edge, so that one noisy pixel does not
+    cut a dot), or the centre is off the picture.
+
+    What is cut is read on the image, not assumed from a radius and a margin: a dot whose outline lies a pixel
+    inside the edge is whole (its centre estimators see all of it but some of its blur), while an oblique ellipse
+    whose long axis meets the edge is cut though its mean radius is inside."""
+    c = np.asarray(centres, float).reshape(-1, 2)
+    r = np.broadcast_to(np.asarray(radii, float), (len(c),))
+    h, w = img.shape
+    top, bottom = overlay[0], h - 1 - overlay[1]
+    reach = 1.4 * r + 2   # an oblique ellipse reaches beyond its mean radius (axes 1.33 r at 16:9)
+    cut = ~((c[:, 0] >= 0) & (c[:, 0] <= w - 1) & (c[:, 1] >= top) & (c[:, 1] <= bottom))
+    near = np.flatnonzero(~cut & ((c[:, 0] - reach <= 0) | (c[:, 0] + reach >= w - 1) | (c[:, 1] - reach <= top)
+                                  | (c[:, 1] + reach >= bottom)))
+    if len(near) == 0:
+        return cut
+    flat = flatten(img, c[near], 1.6 * float(np.max(r[near])) + 4, dark)
+    core = np.hypot(flat.ox, flat.oy) <= np.maximum(0.5 * r[near], 1.0)[:, None, None]
+    half = 0.5 * np.array([np.median(con[m]) for con, m in zip(flat.contrast, core)])
+    x = flat.base[:, 0, None, None] + flat.ox[None].astype(int)
+    y = flat.base[:, 1, None, None] + flat.oy[None].astype(int)
+    seen = (x >= 0) & (x <= w - 1) & (y >= top) & (y <= bottom)
+    con = np.where(seen, flat.contrast, np.nan)
+    along_y = (con + np.roll(con, 1, axis=1) + np.roll(con, -1, axis=1)) / 3     # along the left and right edges
+    along_x = (con + np.roll(con, 1, axis=2) + np.roll(con, -1, axis=2)) / 3     # along the top and bottom rows
+    edge_y, edge_x = (x == 0) | (x == w - 1), (y == top) | (y == bottom)
+    within = np.hypot(x - c[near, 0, None, None], y - c[near, 1, None, None]) <= reach[near, None, None]
+    high = ((edge_y & (np.nan_to_num(along_y, nan=-np.inf) >= half[:, None, None]))
+            | (edge_x & (np.nan_to_num(along_x, nan=-np.inf) >= half[:, None, None])))
+    cut[near] = (high & within & seen).any(axis=(1, 2))
+    return cut
+
+
 def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool,
                       reach: float | None = None) -> bool:
     """Whether the background under the image's dots ``(n, 2)`` [px] is one the ring-flattened estimators
@@ -710,6 +770,49 @@ def uneven_background(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, d
         return False
     reach = dot_reach(img, c, radii, dark) if reach is None else reach
     return bool(saturated_dots(img, c, reach).any()) or streak_mask(img, c, radii, dark, reach) is not None
+
+
+def light_pull_px(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool,
+                  reach: float | None = None) -> float:
+    """How far [px] the light's slope across bright dots pulls their whole-dot centres (``moments``, and less
+    ``symmetry``): the median over (at most 64 of) the dots ``(n, 2)`` [px] of ``|a| r² / 4``, the centroid's shift
+    on a disk of radius ``r`` whose brightness is ``1 + a·x`` along its slope ``a`` [1/px]. Each dot's slope is that
+    of a plane fitted to the flat-fielded contrast of its core (:func:`flatten`; within 0.7 ``r`` of its centroid,
+    the offsets taken from there: about the patch's centre pixel, a peaked core half a pixel off reads as a slope),
+    over its brightness there; the light is smooth, so ``a`` is those slopes' smooth field over the plate (each
+    component a least-squares plane in the dots' places, a quadratic from 12 dots): a dot's texture or noise, which
+    slopes it at random, is not the light's. The PIV Challenge's case E reads 0.24 px so (0.31-0.37 dot by dot; its
+    moments lie 0.21 px off the lattice, its edges 0.06: ``auto`` took an edge estimator there already). Nil
+    for dark dots: their contrast ``1 − I/B`` divides the light out, where a bright dot's ``I − B`` keeps it
+    (:func:`_contrast`), and below 4 dots.
+
+    The lattice residual cannot see this pull: it is smooth across the plate, so the lattice's model takes it up
+    (stereo-piv:77's 5 × 5 plate of 150 px bright dots under a gradient: moments 0.47 px off the truth, the fit
+    0.002, both 0.015 px off their lattices)."""
+    c = np.asarray(centres, float)
+    if dark or len(c) < 4:
+        return 0.0
+    sample = np.unique(np.linspace(0, len(c) - 1, min(len(c), 64)).astype(int))
+    r = np.broadcast_to(np.asarray(radii, float), (len(c),))[sample]
+    reach = dot_reach(img, c, radii, dark) if reach is None else reach
+    flat = flatten(img, c[sample], reach + 1, dark)
+    f = _centroid(*_on_disk(flat.contrast, flat, reach), c[sample] - flat.base, reach, flat.bounds)
+    slope = np.full((len(sample), 2), np.nan)
+    for k in range(len(sample)):
+        dx, dy = flat.ox - f[k, 0], flat.oy - f[k, 1]
+        m = np.hypot(dx, dy) <= 0.7 * r[k]
+        if m.sum() >= 6:
+            design = np.column_stack([np.ones(int(m.sum())), dx[m], dy[m]])
+            b0, bx, by = np.linalg.lstsq(design, flat.contrast[k][m].astype(float), rcond=None)[0]
+            slope[k] = (bx / b0, by / b0) if b0 > 0 else np.nan
+    ok = np.isfinite(slope).all(axis=1)
+    if ok.sum() < 4:
+        return 0.0
+    at = c[sample] - c[sample].mean(axis=0)
+    x, y = at[:, 0] / max(float(np.ptp(at[:, 0])), 1.0), at[:, 1] / max(float(np.ptp(at[:, 1])), 1.0)
+    terms = np.column_stack([np.ones_like(x), x, y] + ([x * x, x * y, y * y] if ok.sum() >= 12 else []))
+    field = terms @ np.linalg.lstsq(terms[ok], slope[ok], rcond=None)[0]
+    return float(np.median(np.hypot(*field[ok].T) * r[ok] ** 2 / 4))
 
 
 def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
@@ -726,7 +829,7 @@ def refine_fit(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark:
     dot whose surroundings saturate keeps its unsaturated core and edges); with ``columns`` the patch is first
     divided by its columns' gain (window streaks, :func:`_streak_gain`). A column saturated along a streak, its
     gain measured on clipped pixels, counts for nothing (a streak that saturates the plate hides how bright it is, and what its
-    saturated pixels bound), and a dot that loses pixels so is fitted again with its outline held to its
+    saturated pixels bound), nor do the edge's copies beyond the image, and a dot that loses pixels so is fitted again with its outline held to its
     neighbours' (:func:`_neighbours_outline`), from the first fit's centre (or its moments' start, the centroid of
     what is left): what it has left, an edge and part of its core, then places it, and it is taken where its outline
     holds its start (:func:`_converged`) and at least :data:`FIT_SEEN` of the pixels inside it were seen; else the
@@ -754,6 +857,10 @@ def _fit_centres(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: 
         p, weight = _streak_gain(img, p, start, reach, dark, sat, columns)
     off = np.arange(-half, half + 1, dtype=np.float64)
     oy, ox = np.meshgrid(off, off, indexing="ij")
+    h, w = img.shape
+    copies = ~(((base[:, 0, None, None] + ox >= 0) & (base[:, 0, None, None] + ox <= w - 1))
+               & ((base[:, 1, None, None] + oy >= 0) & (base[:, 1, None, None] + oy <= h - 1)))
+    weight = np.where(copies, 0.0, weight)   # the edge's copies beyond the image are not seen
     disk = np.hypot(ox, oy) <= reach + 2
     r, blur = _profile_outline(img, start, reach, dark) or (float(np.median(radii)),
                                                             max(0.5 * (reach - 1.5 - float(np.median(radii))), 0.7))
@@ -893,8 +1000,9 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
     con = np.where(bad[:, None, None], np.float32(0), flat.contrast)
     ux, uy, w = _half_disk(reach)
     room = con.shape[1] // 2 - int(np.ceil(reach + 1)) - 1        # how far a centre may move inside its patch
-    f = _centroid(*_on_disk(con, flat, reach), c - flat.base, reach)
+    f = _centroid(*_on_disk(con, flat, reach), c - flat.base, reach, flat.bounds)
     f = np.clip(f, -room, room)                                   # one centroid step: nearer than the detection's
+    w = _seen_pairs(w, ux, uy, f, flat.bounds)
     for _ in range(iterations):                       # Gauss-Newton, the Jacobian at each estimate
         step, jac = _symmetry_step(con, f, ux, uy, w, None)
         f = np.clip(f + step, -room, room)
@@ -906,6 +1014,20 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
         if np.abs(step).max() < 1e-3:
             break
     return np.where(bad[:, None], np.nan, flat.base + f)
+
+
+def _seen_pairs(w: np.ndarray, ux: np.ndarray, uy: np.ndarray, f: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """:func:`refine_symmetry`'s weights ``w`` ``(P,)`` of the offset pairs ``±(ux, uy)``, as ``(n, P)`` without the
+    pairs of which one pixel (within a pixel's margin of the estimate ``f`` ``(n, 2)`` from the patch's centre) is
+    beyond the image's edge (``bounds``, :class:`Flat`): there the patch holds the edge's copies, not the dot; ``w``
+    itself where no dot's pairs leave the image."""
+    near = np.minimum(np.abs(f[:, [0, 0, 1, 1]] - bounds), 1e9)
+    mx, my = near[:, :2].min(axis=1) - 1, near[:, 2:].min(axis=1) - 1    # a pixel short: the estimate moves
+    cut = (np.abs(ux).max(initial=0) > mx) | (np.abs(uy).max(initial=0) > my)
+    if not cut.any():
+        return w
+    keep = (np.abs(ux)[None, :] <= mx[:, None]) & (np.abs(uy)[None, :] <= my[:, None])
+    return np.where(cut[:, None], w[None, :] * keep, w[None, :])
 
 
 def _symmetry_step(con: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, w: np.ndarray,

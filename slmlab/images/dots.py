@@ -46,7 +46,7 @@ from ..errors import SlmlabError
 from .overlay import outside_nil, overlay_rows, picture_rows, within
 from .robust import mad, masked_median
 
-__all__ = ["LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
+__all__ = ["grey_image", "LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
            "STRONG_SHARE", "STRONG_SIGMA",
            "SWEEP_SIDE_PX", "STREAK_BANDS", "STREAK_QUARTILES", "STREAK_SHARE", "read_image",
            "as_float", "as_8bit", "dot_polarity",
@@ -117,6 +117,18 @@ def read_image(path: str | Path) -> np.ndarray:
         else:
             code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
             img = cv2.cvtColor(img, code)
+    return grey_image(img, path)
+
+
+def grey_image(img: np.ndarray, path: str | Path | None = None) -> np.ndarray:
+    """An image array as the extractor reads it: 2-D grey levels, ``uint8`` and ``uint16`` as they are, any other
+    real type (``float64``, signed integers) as ``float32``, which OpenCV's filters take. Not 2-D, empty or with
+    non-finite values is a :class:`SlmlabError` (naming ``path``, the file it came from, if given)."""
+    img = np.asarray(img)
+    if img.ndim != 2 or img.size == 0 or not (np.issubdtype(img.dtype, np.number) or img.dtype == bool) \
+            or np.iscomplexobj(img):
+        raise SlmlabError(f"an image must be a 2-D array of grey levels; got shape {img.shape}, type {img.dtype}",
+                          path)
     if img.dtype not in (np.uint8, np.uint16):
         img = img.astype(np.float32)
         if not np.isfinite(img).all():

@@ -32,15 +32,16 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
-from .centres import METHODS, dot_reach, refine, saturated_dots, uneven_background
-from .dots import Candidates, Contrast, ContrastMesh, clean_hot_pixels, read_image, search_missing, sweep
+from .centres import METHODS, dot_reach, light_pull_px, outline_cut, refine, saturated_dots, uneven_background
+from .dots import (Candidates, Contrast, ContrastMesh, clean_hot_pixels, grey_image, read_image, search_missing,
+                   sweep)
 from .overlay import overlay_painted
 from .markers import (distinct_markers, filled_holes, joined_markers, marker_outline, off_lattice_markers,
                       painted_out)
 from .lattice import (AREA_RANGE, LatticeFit, PlateLattice, donut_indices, fit_lattice, inside_image,
                       lattice_residual_px, number_plate, origin_frame, plate_lattice, robust_model, similar_area)
 
-__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "OFF_LATTICE_PX", "ImageDots",
+__all__ = ["IMAGE_NAME", "AUTO_EDGE_RATIO", "AUTO_FIT_RATIO", "AUTO_FIT_SLACK", "LIGHT_PULL_PX", "OFF_LATTICE_PX", "ImageDots",
            "empty_dots_table", "extract_image", "extract_image_methods", "Choice", "choose_method", "report_summary",
            "extract_stereo_pairs"]
 
@@ -84,6 +85,11 @@ AUTO_FIT_RATIO = 0.95
 #: take them off the lattice for the others (greenough:5's bright region: the fit 0.030 px RMS with one dot
 #: lost in 196, the others 1.2-1.4 px off on the three dots beside the glare)
 AUTO_FIT_SLACK = 1
+#: ``method="auto"`` does not choose the whole-dot estimators (``moments``, ``symmetry``) for bright dots that the
+#: light's slope across them pulls this far [px] (:func:`slmlab.images.centres.light_pull_px`): the lattice residual
+#: the rule compares cannot see a pull that is smooth across the plate. The 0.05 px the extraction is held to;
+#: the estimate runs about 1.5 times the moments' true pull on large dots, so it holds them to about 0.03
+LIGHT_PULL_PX = 0.05
 #: a refined centre this far [px] from the refitted lattice may be dropped (if also five times the dots'
 #: median distance from it): the least that tells a centre pulled by dust from the lattice's own scatter
 OFF_LATTICE_PX = 0.25
@@ -240,7 +246,9 @@ def _locate(img: np.ndarray, rows: int | None, cols: int | None, dark: bool | No
             camera_hot: np.ndarray | None = None) -> _Located:
     """Steps 1-2 of the module docstring: candidates and lattice, a camera's text overlay painted over
     (:func:`slmlab.images.overlay.overlay_painted`), hot pixels (the camera's known ones
-    ``camera_hot`` too, :func:`slmlab.images.dots.camera_hot_pixels`), the local search."""
+    ``camera_hot`` too, :func:`slmlab.images.dots.camera_hot_pixels`), the local search. ``img``: any 2-D array
+    of grey levels (:func:`slmlab.images.dots.grey_image`)."""
+    img = grey_image(img)
     loc = _detect_fine(img, dark, two_level)
     if loc.fit is None:
         return loc
@@ -399,7 +407,7 @@ def _refined(loc: _Located, method: str, two_level: bool):
     refined centres."""
     radii = np.sqrt(loc.area / np.pi)
     xy = refine(loc.clean, loc.xy, radii, dark=loc.dark, method=method)
-    whole = inside_image(xy, loc.clean.shape, radii + 1, loc.con.overlay)   # the dot's outline, plus 1 px
+    whole = ~outline_cut(loc.clean, xy, radii, loc.dark, loc.con.overlay)
     use = whole if whole.sum() >= 12 else np.ones(len(xy), bool)    # a dot cut by the edge does not shape it
     model, _ = robust_model(loc.ab[use].astype(float), xy[use], loc.fit.pitch, two_level=two_level)
     off = np.hypot(*(xy - model.predict(loc.ab)).T)
@@ -687,7 +695,8 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> Choice:
     :func:`slmlab.images.lattice.lattice_residual_px` on the dots all of them kept: the model ``fit``, tried on
     an image with saturation or streaks around the dots (:func:`slmlab.images.centres.uneven_background`), if it
     is below :data:`AUTO_FIT_RATIO` times the best other's residual (where the dots' patches hold a clipped region,
-    unless it is above the best other's divided by it); else an edge estimator (the smoother of
+    unless it is above the best other's divided by it); bright dots the light's slope pulls by more than
+    :data:`LIGHT_PULL_PX` are left to the fit and the edge estimators (all are still reported); else an edge estimator (the smoother of
     ``ellipse`` and ``edges``) only if it is below :data:`AUTO_EDGE_RATIO` times the moments' residual or the
     moments lost dots (textured dots; then the model fit is tried too, :func:`_textured_fit`), else the smoother
     of ``moments`` and ``symmetry``. ``kw``: :func:`extract_image`'s keywords. Returns a :class:`Choice`."""
@@ -703,6 +712,8 @@ def choose_method(img: np.ndarray, rows=None, cols=None, **kw) -> Choice:
     clipped = bool(saturated_dots(loc.clean, loc.xy, reach, regions=True).any())   # a glare, a clipped streak
     tabled = {m: _table(loc, m, anchoring["two_level"]) for m in METHODS if uneven or m != "fit"}
     kept, res = _kept_and_residuals({m: t[0] for m, t in tabled.items()})
+    if light_pull_px(loc.clean, loc.xy, radii, loc.dark, reach) > LIGHT_PULL_PX:   # the light pulls whole dots
+        kept = {m: k for m, k in kept.items() if m not in ("moments", "symmetry")}
     method = _best_method(kept, res, 1 / AUTO_FIT_RATIO if clipped else AUTO_FIT_RATIO)
     runner_up = _best_method({m: k for m, k in kept.items() if m != "fit"}, res)
     if _textured(method, res) and "fit" not in tabled:  # textured: something pulls the dots off symmetry
