@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from .errors import SlmlabError
 from .gripping import grip
 from .images.centres import METHODS
 from .images.imageset import extract_set
-from .io import IMAGE_COLUMNS, atomic_folder, read_points, read_set, write_csv, write_set
+from .io import IMAGE_COLUMNS, atomic_folder, clear_simulated_set, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
 from .models.auto import selection_table
 from .paper.evaluation import evaluate
@@ -133,6 +134,7 @@ def _simulate(a) -> int:
         cal = simulate_set(preset(a.preset), session, seed=a.seed)
     if a.images:
         check_renderable(cal)
+    clear_simulated_set(a.out_dir)   # a set simulated there before is replaced, not mixed with the new one
     with atomic_folder(a.out_dir) as folder:   # a new set is written whole or not at all
         write_set(folder, cal)
         written = render_set(cal, folder) if a.images else []
@@ -175,9 +177,18 @@ def _models(a) -> int:
     return 0
 
 
+def _not_an_input(out: Path, inputs: list[Path]) -> None:
+    """:class:`SlmlabError` where ``--out`` is one of the command's own input files (a model written over the set's
+    ``points.csv`` had replaced it, and the set could not be read again)."""
+    same = [f for f in inputs if f.exists() and out.exists() and os.path.samefile(out, f)]
+    if same:
+        raise SlmlabError(f"--out is the input {same[0].name}, which this would overwrite; choose another --out", out)
+
+
 def _calibrate(a) -> int:
     if not a.out.parent.exists():
         raise SlmlabError(f"the folder {a.out.parent} does not exist; create it or choose another --out", a.out)
+    _not_an_input(a.out, [a.cal_dir / n for n in ("points.csv", "stage.csv", "meta.json", "truth.csv")])
     options = _model_options(a.model, a.option)
     cal = read_set(a.cal_dir)
     model = calibrate(cal, a.model, **options)
@@ -218,6 +229,7 @@ def _model_options(name: str | None, pairs: list[str]) -> dict:
 
 
 def _reconstruct(a) -> int:
+    _not_an_input(a.out, [a.model])   # the points' own file it may replace: every column passes through
     model = load_model(a.model)
     df = read_points(a.points)
     w = df[IMAGE_COLUMNS].to_numpy(float)

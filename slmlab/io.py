@@ -39,6 +39,7 @@ __all__ = [
     "atomic_write_text",
     "atomic_write_bytes",
     "atomic_folder",
+    "clear_simulated_set",
     "json_text",
     "read_csv_text",
     "read_meta",
@@ -216,6 +217,40 @@ def atomic_folder(path: str | os.PathLike):
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def clear_simulated_set(path: str | os.PathLike) -> None:
+    """Make ``path`` ready for a set simulated into it: nothing where it does not exist or is empty; where it holds a
+    set slmlab simulated (its ``meta.json`` names the simulator), that set's own files removed (``points.csv``,
+    ``truth.csv``, ``stage.csv``, ``meta.json`` and the images its ``stage.csv`` names, with their folder if that is
+    left empty; anything else stays), so that the new set is not mixed with the old (an old ``stage.csv`` and
+    images beside new points and truth had ``extract`` number half the dots wrongly); anything else refused (a
+    real set's images, or files that are no set's, would be mixed with a simulation)."""
+    path = Path(path)
+    if not path.is_dir() or not any(path.iterdir()):
+        return
+    try:
+        simulated = "simulator" in json.loads((path / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError, TypeError):
+        simulated = False
+    if not simulated:
+        raise SlmlabError("holds files but no simulated set; simulate into a new or empty folder (a set simulated "
+                          "here would be mixed with them)", path)
+    images = []
+    try:
+        stage = pd.read_csv(path / "stage.csv", dtype=str) if (path / "stage.csv").exists() else pd.DataFrame()
+        images = [path / v for c in ("left_image", "right_image") if c in stage for v in stage[c].dropna()]
+    except (OSError, ValueError, pd.errors.ParserError):
+        pass
+    try:
+        for f in [path / n for n in ("points.csv", "truth.csv", "stage.csv", "meta.json")] + images:
+            if f.is_file() and path.resolve() in f.resolve().parents:
+                f.unlink()
+        for folder in {f.parent for f in images} - {path}:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+    except OSError as exc:
+        raise _refused(exc, path) from None
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -283,3 +283,39 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_a_set_simulated_again_into_its_folder_replaces_it_and_no_other_folder_is_taken(tmp_path):
+    """A set simulated with images and then again without: the old stage.csv and images stayed beside the new
+    points and truth, and ``extract`` numbered half the dots wrongly against them. The old simulated set's own
+    files go (a file of the user's beside them stays); a folder holding anything but a simulated set is refused in
+    one line, and nothing is written into it."""
+    out = tmp_path / "set"
+    assert run_cli("simulate", str(out), "--rig", "greenough:3", "--design", "zstack-3", "--images").returncode == 0
+    (out / "notes.txt").write_text("mine\n")
+    r = run_cli("simulate", str(out), "--rig", "greenough:3", "--design", "zstack-2", "--seed", "5")
+    assert r.returncode == 0, r.stderr
+    assert {p.name for p in out.iterdir()} == {"points.csv", "truth.csv", "meta.json", "notes.txt"}
+    assert json.loads((out / "meta.json").read_text())["simulator"]["design"] == "zstack-2"
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "data.csv").write_text("a\n1\n")
+    r = run_cli("simulate", str(other), "--rig", "greenough:3", "--design", "zstack-2")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no simulated set" in r.stderr, r.stderr
+    assert [p.name for p in other.iterdir()] == ["data.csv"]
+
+
+def test_calibrate_and_reconstruct_do_not_write_over_their_inputs(tmp_path):
+    """``calibrate --out`` onto the set's own points.csv replaced it with the model (and the set could no longer be
+    read); ``reconstruct --out`` onto the model file likewise. Both are refused in one line, the inputs untouched."""
+    out = tmp_path / "set"
+    assert run_cli("simulate", str(out), "--rig", "greenough:3", "--design", "zstack-3").returncode == 0
+    before = (out / "points.csv").read_bytes()
+    r = run_cli("calibrate", str(out), "--model", "quadratic", "--out", str(tmp_path / "set" / ".." / "set" / "points.csv"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--out is the input points.csv" in r.stderr, r.stderr
+    assert (out / "points.csv").read_bytes() == before
+    model = tmp_path / "m.json"
+    assert run_cli("calibrate", str(out), "--model", "quadratic", "--out", str(model)).returncode == 0
+    saved = model.read_bytes()
+    r = run_cli("reconstruct", str(model), str(out / "points.csv"), "--out", str(model))
+    assert r.returncode == 2 and "--out is the input m.json" in r.stderr and model.read_bytes() == saved, r.stderr
