@@ -24,11 +24,13 @@ from .errors import SlmlabError
 from .gripping import grip
 from .images.centres import METHODS
 from .images.imageset import extract_set
-from .io import IMAGE_COLUMNS, atomic_folder, clear_simulated_set, read_points, read_set, write_csv, write_set
+from .io import (IMAGE_COLUMNS, TARGET_COLUMNS, atomic_folder, clear_simulated_set, read_points, read_set, write_csv,
+                 write_set)
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
 from .models.auto import selection_table
 from .paper.evaluation import evaluate
 from .studies.extraction import extraction_errors, extraction_summary
+from .target_check import check_target
 from .virtual.designs import DESIGNS, simulate_design
 from .virtual.presets import preset
 from .virtual.render import check_renderable, render_set, truth_places_held
@@ -258,8 +260,9 @@ def _evaluate(a) -> int:
     for note in cal.notes:
         print(f"note: {note}", file=sys.stderr)
     table = selection_table(model)
+    ev = _evaluation(model, cal)
     if a.json:
-        print(json.dumps({**evaluate(model, cal).as_json(), "selection": model.calibration.get("selection")}, indent=2))
+        print(json.dumps({**ev.as_json(), "selection": model.calibration.get("selection")}, indent=2))
         return 0
     if table is not None:  # the default's choice first: it is in the model file, whatever the set evaluated
         sel = model.calibration["selection"]
@@ -270,8 +273,19 @@ def _evaluate(a) -> int:
         if stage := sel.get("stage"):  # the stage's own errors (slmlab.models.stage_errors)
             print(f"  stage positions {'corrected' if stage['applied'] else 'as commanded'}: {stage['why']}")
         print()
-    print(evaluate(model, cal).text())
+    print(ev.text())
     return 0
+
+
+def _evaluation(model, cal):
+    """The paper's evaluation on the set's stage sequences (§5.2-§5.3); on a known-target set without them, the
+    target's shape (:func:`slmlab.target_check.check_target`)."""
+    try:
+        return evaluate(model, cal)
+    except SlmlabError:
+        if not set(TARGET_COLUMNS) <= set(cal.points.columns):
+            raise
+        return check_target(model, cal)
 
 
 def _grip(a) -> int:
