@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="write a simulated calibration set (with truth.csv) from a virtual instrument")
     s.add_argument("out_dir", type=Path)
-    s.add_argument("--preset", default="paper", help="virtual CMO microscope preset (paper, leica, ideal)")
+    s.add_argument("--preset", default=None, help="virtual CMO microscope preset (paper, leica, ideal; default paper)")
     s.add_argument("--rig", default=None, help="a virtual rig instead of the CMO microscope: greenough, stereo-dic, "
                    "stereo-piv, or KIND:SEED for one drawn at random (e.g. stereo-piv:7); needs --design")
     s.add_argument("--design", default=None, help="what the rig images: zstack-2 ... zstack-13, stage-sequences, "
@@ -79,7 +79,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--images", action="store_true", help="also render every stereo pair as PNG (a rig's with its "
                    "camera's degradations, and a stage.csv naming them; not the stepped target)")
     g = s.add_mutually_exclusive_group()
-    g.add_argument("--test", type=int, default=1, help="calibration test 1-5 of the paper's Table 3 (default 1)")
+    g.add_argument("--test", type=int, default=None, help="calibration test 1-5 of the paper's Table 3 (default 1)")
     g.add_argument("--validation", action="store_true", help="the §6 validation run instead of a calibration test")
 
     e = sub.add_parser("extract", help="find and index the dots in images/ and write points.csv")
@@ -130,10 +130,13 @@ def _simulate(a) -> int:
         raise SlmlabError("--rig and --design go together: a rig (greenough, stereo-dic, stereo-piv) and what it "
                           f"images ({', '.join(DESIGNS)})")
     if a.rig is not None:
+        given = [f"--{k}" for k in ("preset", "test") if getattr(a, k) is not None] + ["--validation"] * a.validation
+        if given:   # the CMO microscope's options: a rig would have ignored them
+            raise SlmlabError(f"{given[0]} is the CMO microscope's; a rig's set is chosen by --rig and --design alone")
         cal = simulate_design(rig_by_name(a.rig), a.design, seed=a.seed)
     else:
-        session = validation_session() if a.validation else paper_test(a.test)
-        cal = simulate_set(preset(a.preset), session, seed=a.seed)
+        session = validation_session() if a.validation else paper_test(1 if a.test is None else a.test)
+        cal = simulate_set(preset(a.preset or "paper"), session, seed=a.seed)
     if a.images:
         check_renderable(cal)
     clear_simulated_set(a.out_dir)   # a set simulated there before is replaced, not mixed with the new one

@@ -319,3 +319,11 @@ def test_calibrate_and_reconstruct_do_not_write_over_their_inputs(tmp_path):
     saved = model.read_bytes()
     r = run_cli("reconstruct", str(model), str(out / "points.csv"), "--out", str(model))
     assert r.returncode == 2 and "--out is the input m.json" in r.stderr and model.read_bytes() == saved, r.stderr
+
+
+@pytest.mark.parametrize("extra", [["--preset", "leica"], ["--test", "3"], ["--validation"]])
+def test_the_cmo_microscope_s_options_beside_a_rig_are_refused_not_ignored(tmp_path, extra):
+    """``--rig`` with ``--preset``, ``--test`` or ``--validation`` wrote the rig's set as if they were not there."""
+    r = run_cli("simulate", str(tmp_path / "s"), "--rig", "greenough", "--design", "zstack-2", *extra)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and f"{extra[0]} is the CMO microscope's" in r.stderr
+    assert not (tmp_path / "s").exists()
