@@ -24,8 +24,7 @@ from .errors import SlmlabError
 from .gripping import grip
 from .images.centres import METHODS
 from .images.imageset import extract_set
-from .io import (IMAGE_COLUMNS, TARGET_COLUMNS, atomic_folder, clear_simulated_set, read_points, read_set, write_csv,
-                 write_set)
+from .io import IMAGE_COLUMNS, TARGET_COLUMNS, atomic_folder, read_points, read_set, write_csv, write_set
 from .models import available_models, calibrate, default_model_name, get_model_class, load_model
 from .models.auto import selection_table
 from .paper.evaluation import evaluate
@@ -139,8 +138,7 @@ def _simulate(a) -> int:
         cal = simulate_set(preset(a.preset or "paper"), session, seed=a.seed)
     if a.images:
         check_renderable(cal)
-    clear_simulated_set(a.out_dir)   # a set simulated there before is replaced, not mixed with the new one
-    with atomic_folder(a.out_dir) as folder:   # a new set is written whole or not at all
+    with atomic_folder(a.out_dir) as folder:   # whole or not at all; an old simulated set replaced only then
         write_set(folder, cal)
         written = render_set(cal, folder) if a.images else []
     n = cal.points[["wl1", "wr1"]].notna().all(axis=1).sum()

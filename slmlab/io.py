@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from contextlib import contextmanager
@@ -39,7 +40,9 @@ __all__ = [
     "atomic_write_text",
     "atomic_write_bytes",
     "atomic_folder",
-    "clear_simulated_set",
+    "IMAGE_NAME",
+    "SET_FILES",
+    "simulated_set_files",
     "json_text",
     "read_csv_text",
     "read_meta",
@@ -190,15 +193,26 @@ def _refused(exc: OSError, path: Path) -> SlmlabError:
     return SlmlabError(f"cannot be written: {exc.strerror or exc}", path)
 
 
+#: how ``simulate --images`` names a rendered image in a set's ``images/`` folder (and ``extract`` reads one there)
+IMAGE_NAME = re.compile(r"^(?P<sequence>.+)_(?P<position>\d{3,})_(?P<side>[lr])\.png$")
+
+#: the files of a set that are the set's own (beside its images)
+SET_FILES = ("points.csv", "truth.csv", "stage.csv", "meta.json")
+
+
 @contextmanager
 def atomic_folder(path: str | os.PathLike):
-    """A folder written whole or not at all: yields a temporary folder beside ``path`` that is renamed to it when
-    the block ends, and removed where the block fails (no space, a file-size limit, an interrupted render: a half
-    set is never left). Where ``path`` exists already, its own files are written in place, each atomically."""
+    """A set's folder written whole or not at all: yields a temporary folder beside ``path``, removed where the block
+    fails (no space, a file-size limit, an interrupted render: a half set is never left); when the block ends, it is
+    renamed to ``path``, or, where ``path`` is an empty folder or holds a set slmlab simulated before
+    (:func:`simulated_set_files`), that set's own files are removed and the new ones moved in (a file of the user's
+    beside them stays). Any other folder is refused before anything is written: a set simulated there would be
+    mixed with what it holds."""
     path = Path(path)
-    if path.exists() or not path.parent.exists():   # write_set says what is wrong with such a path
+    if not path.parent.exists() or (path.exists() and not path.is_dir()):   # write_set says what is wrong
         yield path
         return
+    old = simulated_set_files(path) if path.exists() else None
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     except OSError as exc:
@@ -206,7 +220,10 @@ def atomic_folder(path: str | os.PathLike):
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_UMASK)   # mkdtemp makes 0700; give the folder the mode a plain mkdir would
-        os.replace(tmp, path)
+        if old is None:
+            os.replace(tmp, path)
+        else:
+            _replace_files(path, old, tmp)
     except SlmlabError as exc:   # named where the user asked for it, not in the temporary folder
         shutil.rmtree(tmp, ignore_errors=True)
         where = exc.path and str(exc.path).replace(str(tmp), str(path), 1)
@@ -219,38 +236,47 @@ def atomic_folder(path: str | os.PathLike):
         raise
 
 
-def clear_simulated_set(path: str | os.PathLike) -> None:
-    """Make ``path`` ready for a set simulated into it: nothing where it does not exist or is empty; where it holds a
-    set slmlab simulated (its ``meta.json`` names the simulator), that set's own files removed (``points.csv``,
-    ``truth.csv``, ``stage.csv``, ``meta.json`` and the images its ``stage.csv`` names, with their folder if that is
-    left empty; anything else stays), so that the new set is not mixed with the old (an old ``stage.csv`` and
-    images beside new points and truth had ``extract`` number half the dots wrongly); anything else refused (a
-    real set's images, or files that are no set's, would be mixed with a simulation)."""
-    path = Path(path)
-    if not path.is_dir() or not any(path.iterdir()):
-        return
+def simulated_set_files(path: Path) -> list[Path]:
+    """The files of the set slmlab simulated in the folder ``path`` (its ``meta.json`` holds a ``simulator``
+    record): :data:`SET_FILES`, and in its own ``images/`` (not a link) the files named as :data:`IMAGE_NAME` and
+    those its ``stage.csv`` names there; nothing for an empty folder. Any other folder is a :class:`SlmlabError`."""
+    entries = list(path.iterdir())
+    if not entries:
+        return []
     try:
-        simulated = "simulator" in json.loads((path / "meta.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError, TypeError):
-        simulated = False
-    if not simulated:
+        meta = json.loads((path / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        meta = None
+    if not (isinstance(meta, dict) and isinstance(meta.get("simulator"), dict)):
         raise SlmlabError("holds files but no simulated set; simulate into a new or empty folder (a set simulated "
                           "here would be mixed with them)", path)
-    images = []
-    try:
-        stage = pd.read_csv(path / "stage.csv", dtype=str) if (path / "stage.csv").exists() else pd.DataFrame()
-        images = [path / v for c in ("left_image", "right_image") if c in stage for v in stage[c].dropna()]
-    except (OSError, ValueError, pd.errors.ParserError):
-        pass
-    try:
-        for f in [path / n for n in ("points.csv", "truth.csv", "stage.csv", "meta.json")] + images:
-            if f.is_file() and path.resolve() in f.resolve().parents:
-                f.unlink()
-        for folder in {f.parent for f in images} - {path}:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-    except OSError as exc:
-        raise _refused(exc, path) from None
+    own = [path / n for n in SET_FILES if (path / n).is_file()]
+    images = path / "images"
+    if images.is_dir() and not images.is_symlink():
+        named = set()
+        try:
+            stage = pd.read_csv(path / "stage.csv", dtype=str) if (path / "stage.csv").is_file() else pd.DataFrame()
+            named = {Path(v).name for c in ("left_image", "right_image") if c in stage for v in stage[c].dropna()
+                     if Path(v).parent == Path("images")}
+        except (OSError, ValueError, pd.errors.ParserError):
+            pass
+        own += [f for f in images.iterdir() if f.is_file() and (IMAGE_NAME.match(f.name) or f.name in named)]
+    return own
+
+
+def _replace_files(path: Path, old: list[Path], new: Path) -> None:
+    """The old set's files ``old`` in ``path`` removed, the new set's in the folder ``new`` moved in, ``new`` removed."""
+    for f in old:
+        f.unlink()
+    for f in sorted(new.rglob("*")):
+        if f.is_file():
+            to = path / f.relative_to(new)
+            to.parent.mkdir(exist_ok=True)
+            os.replace(f, to)
+    images = path / "images"
+    if images.is_dir() and not images.is_symlink() and not any(images.iterdir()):
+        images.rmdir()
+    shutil.rmtree(new, ignore_errors=True)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -914,16 +914,17 @@ def test_a_column_of_dots_a_pixel_inside_the_edge_is_found_and_centred(method):
 
 def test_a_dot_is_cut_where_its_outline_reaches_the_edge_not_where_its_mean_radius_does():
     """:func:`slmlab.images.centres.outline_cut` reads the edge's pixels: a round dot 1 px inside is whole, one
-    2 px across the edge is cut, and an oblique ellipse (axes 16 and 9 px) whose long axis reaches the edge is cut
-    though its mean radius (12 px) ends 3 px inside."""
+    2 px across the edge is cut, and an elongated ellipse (axes 16 and 9 px) whose long axis reaches the edge is cut
+    though its mean radius (12 px) ends 3 px inside. (Each image is blurred on a wider canvas, then cropped: the
+    camera's edge does not mirror the dot.)"""
     from slmlab.images.centres import outline_cut
-    size, k = 120, 8
-    yy, xx = (np.mgrid[0:size * k, 0:size * k] + 0.5) / k - 0.5
+    size, k, pad = 120, 8, 10
+    yy, xx = (np.mgrid[0:(size + pad) * k, 0:(size + pad) * k] + 0.5) / k - 0.5
     def image(a, b, x0):
         cov = ((xx - x0) / a) ** 2 + ((yy - 60) / b) ** 2 <= 1
-        cov = cv2.GaussianBlur(cv2.resize(cov.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA),
-                               (0, 0), 1.0)
-        return (180 * (1 - 0.5 * cov)).astype(np.float32)
+        cov = cv2.GaussianBlur(cv2.resize(cov.astype(np.float32), (size + pad, size + pad),
+                                          interpolation=cv2.INTER_AREA), (0, 0), 1.0)[:size, :size]
+        return np.ascontiguousarray(180 * (1 - 0.5 * cov), np.float32)
     edge = size - 1
     whole = outline_cut(image(12, 12, edge - 13), np.array([[edge - 13, 60.0]]), np.array([12.0]), dark=True)
     cut = outline_cut(image(12, 12, edge - 10), np.array([[edge - 10, 60.0]]), np.array([12.0]), dark=True)
@@ -983,3 +984,18 @@ def test_large_bright_dots_under_uneven_light_are_not_left_to_their_centroids(de
         ch.method, np.sqrt(np.mean(d ** 2)))
     clean, xy = _big_bright_dots("clean")
     assert light_pull_px(clean, xy, np.full(25, 70.0), dark=False) < 0.2 * LIGHT_PULL_PX
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_a_dense_plate_s_dots_cut_by_the_edge_are_dropped(seed):
+    """Dots of 4 px radius at a pitch of 16 px, the last column's outlines 1 px beyond the image's edge: every cut dot
+    is dropped, as the old rule dropped them, and the rest are found. The ring that reads the background under a dot
+    stays between the dots (1.6 r + 4 px out, it lay on the neighbours: cut dots were kept, up to 1 px off)."""
+    xy, cov, rng = _synthetic_plate(n=9, pitch=16, radius=4.0, blur=1.0, size=200, seed=seed)
+    last = xy[:, 0] > xy[:, 0].max() - 3
+    width = int(np.floor(xy[last, 0].min() + 4 - 1))             # every outline of the column 1 px or more beyond
+    img = np.ascontiguousarray((180 * (1 - 0.5 * cov) + rng.normal(0, 0.5, cov.shape))[:, :width], np.float32)
+    for method in ("moments", "edges"):
+        got = extract_image(img, 9, 9, method=method).table[["w1", "w2"]].to_numpy()
+        d = np.hypot(*(got[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+        assert len(got) == 72 and d.max() < 0.15, (method, len(got), d.max())   # interior: moments 0.11 here

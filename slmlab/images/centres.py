@@ -248,7 +248,8 @@ def _centroid(con: np.ndarray, ox: np.ndarray, oy: np.ndarray, f: np.ndarray, re
     ``reach + 0.5`` [px] around ``f`` ``(n, 2)``; where the disk leaves the image (``bounds``, :class:`Flat`),
     also within a box about ``f`` as far as the nearer edge on each axis: a window symmetric about the estimate,
     so that the blur the edge cuts off one side is left off the other too and a symmetric dot's centroid is not
-    pulled (the edge's copied pixels pulled a defocused dot a pixel inside the edge 0.09 px towards it). float32
+    pulled (the edge's copied pixels pulled a defocused dot a pixel inside the edge 0.09 px towards it on
+    stereo-dic:2024). float32
     is ample here: sums of a few thousand terms of size <= reach, relative error ~1e-6 px."""
     f = f.astype(np.float32)
     win = np.clip(np.float32(reach + 0.5) - np.hypot(ox[None, :] - f[:, 0, None], oy[None, :] - f[:, 1, None]),
@@ -725,9 +726,10 @@ def outline_cut(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: b
                 overlay: tuple[int, int] = (0, 0)) -> np.ndarray:
     """Whether each dot's outline ``(n,)`` reaches the picture's edge: a pixel of its first or last column, or of
     its first or last row clear of a camera's text ``overlay`` (rows at the top and bottom), within 1.4 ``radii``
-    + 2 px of the dot's centre ``(n, 2)`` [px] holds at least half the dot's core contrast (flat-fielded as the centre
-    estimators read it, :func:`flatten`; the mean of three pixels along the edge, so that one noisy pixel does not
-    cut a dot), or the centre is off the picture.
+    + 2 px of the dot's centre ``(n, 2)`` [px] holds at least half the dot's contrast (the 90th percentile within
+    0.8 of its radius: a donut's ring counts; flat-fielded as the centre estimators read it, :func:`flatten`, on a
+    ring that stays between the dots of a dense plate; the mean of three pixels along the edge, so that one noisy
+    pixel does not cut a dot), or the centre is off the picture.
 
     What is cut is read on the image, not assumed from a radius and a margin: a dot whose outline lies a pixel
     inside the edge is whole (its centre estimators see all of it but some of its blur), while an oblique ellipse
@@ -742,9 +744,11 @@ def outline_cut(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: b
                                   | (c[:, 1] + reach >= bottom)))
     if len(near) == 0:
         return cut
-    flat = flatten(img, c[near], 1.6 * float(np.max(r[near])) + 4, dark)
-    core = np.hypot(flat.ox, flat.oy) <= np.maximum(0.5 * r[near], 1.0)[:, None, None]
-    half = 0.5 * np.array([np.median(con[m]) for con, m in zip(flat.contrast, core)])
+    rmax = float(np.max(r[near]))
+    gap = float(np.median(cKDTree(c).query(c, k=2)[0][:, 1])) if len(c) > 2 else np.inf   # the dots' spacing
+    flat = flatten(img, c[near], max(rmax + 2, min(1.6 * rmax + 4, gap - rmax - 6)), dark)   # a ring between dots
+    inner = np.hypot(flat.ox, flat.oy) <= np.maximum(0.8 * r[near], 1.0)[:, None, None]
+    half = 0.5 * np.array([np.percentile(con[m], 90) for con, m in zip(flat.contrast, inner)])   # a donut's too
     x = flat.base[:, 0, None, None] + flat.ox[None].astype(int)
     y = flat.base[:, 1, None, None] + flat.oy[None].astype(int)
     seen = (x >= 0) & (x <= w - 1) & (y >= top) & (y <= bottom)

@@ -44,11 +44,11 @@ import pandas as pd
 from tqdm import tqdm
 
 from ..errors import SlmlabError
-from ..io import (IMAGE_COLUMNS, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
+from ..io import (IMAGE_COLUMNS, IMAGE_NAME, PATTERNS, POINT_COLUMNS, STAGE_COLUMNS, read_csv_text, read_meta, read_set,
                   require_columns, sequence_position_stage)
 from .boards import charuco_board, detect_board
 from .dots import camera_hot_pixels, hot_images_needed, hot_pixel_flags, read_image
-from .extract import (AUTO_FIT_SLACK, IMAGE_NAME, ImageDots, choose_method, extract_image, extract_image_methods,
+from .extract import (AUTO_FIT_SLACK, ImageDots, choose_method, extract_image, extract_image_methods,
                       report_summary)
 from .tracking import Numbered, track
 
