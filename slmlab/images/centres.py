@@ -801,14 +801,18 @@ def light_pull_px(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark:
     reach = dot_reach(img, c, radii, dark) if reach is None else reach
     flat = flatten(img, c[sample], reach + 1, dark)
     f = _centroid(*_on_disk(flat.contrast, flat, reach), c[sample] - flat.base, reach, flat.bounds)
+    dx = (flat.ox[None] - f[:, 0, None, None]).reshape(len(sample), -1)          # offsets from each centroid
+    dy = (flat.oy[None] - f[:, 1, None, None]).reshape(len(sample), -1)
+    m = (np.hypot(dx, dy) <= 0.7 * r[:, None]).astype(float)
+    con = flat.contrast.reshape(len(sample), -1).astype(float)
+    terms = (np.ones_like(dx), dx, dy)                                            # a plane per core, at once
+    normal = np.stack([np.stack([(m * a * b).sum(axis=1) for b in terms], -1) for a in terms], -2)
+    rhs = np.stack([(m * a * con).sum(axis=1) for a in terms], -1)
+    enough = (m.sum(axis=1) >= 6) & (np.abs(np.linalg.det(normal)) > 1e-9)
     slope = np.full((len(sample), 2), np.nan)
-    for k in range(len(sample)):
-        dx, dy = flat.ox - f[k, 0], flat.oy - f[k, 1]
-        m = np.hypot(dx, dy) <= 0.7 * r[k]
-        if m.sum() >= 6:
-            design = np.column_stack([np.ones(int(m.sum())), dx[m], dy[m]])
-            b0, bx, by = np.linalg.lstsq(design, flat.contrast[k][m].astype(float), rcond=None)[0]
-            slope[k] = (bx / b0, by / b0) if b0 > 0 else np.nan
+    if enough.any():
+        b = np.linalg.solve(normal[enough], rhs[enough][..., None])[..., 0]
+        slope[enough] = np.where(b[:, :1] > 0, b[:, 1:] / np.where(b[:, :1] > 0, b[:, :1], 1.0), np.nan)
     ok = np.isfinite(slope).all(axis=1)
     if ok.sum() < 4:
         return 0.0
