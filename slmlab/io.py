@@ -202,7 +202,8 @@ SET_FILES = ("points.csv", "truth.csv", "stage.csv", "meta.json")
 
 @contextmanager
 def atomic_folder(path: str | os.PathLike):
-    """A set's folder written whole or not at all: yields a temporary folder beside ``path``, removed where the block
+    """A set's folder written whole or not at all: yields a temporary folder (beside ``path``, or in it where it is
+    a folder already), removed where the block
     fails (no space, a file-size limit, an interrupted render: a half set is never left); when the block ends, it is
     renamed to ``path``, or, where ``path`` is an empty folder or holds a set slmlab simulated before
     (:func:`simulated_set_files`), that set's own files are removed and the new ones moved in (a file of the user's
@@ -213,8 +214,8 @@ def atomic_folder(path: str | os.PathLike):
         yield path
         return
     old = simulated_set_files(path) if path.exists() else None
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:   # inside a folder that exists (its parent may not be the user's to write in), else beside it
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if old is None else path))
     except OSError as exc:
         raise _refused(exc, path) from None
     try:

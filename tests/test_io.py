@@ -344,3 +344,4 @@ def test_a_microscope_set_simulated_again_loses_its_old_images_and_a_failed_one_
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["cmo"]       # no temporary folder left beside it
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]   # nor in it
