@@ -159,7 +159,7 @@ def draw_microscope(state: dict, fig) -> None:
     a.set_xlim(0, w)
     a.set_ylim(h, 0)
     a.set_aspect("equal")
-    a.set_title("image-plane tracks (left view)", fontsize=9)
+    a.set_title("image-plane tracks (left view)", fontsize=9, y=1.0)   # y: see draw_models
     d = state["disparity"]
     b.plot(d["w1_l"], d["D0"], ",", color="tab:purple")
     j = state["alignment"].disparity["joint"]
@@ -168,7 +168,7 @@ def draw_microscope(state: dict, fig) -> None:
     b.plot(ww, level + j.aD * ww ** 2 + j.bD * ww, "k-", lw=1)
     b.set_xlabel("w1 [px]")
     b.set_ylabel("disparity D0 [px]")
-    b.set_title("disparity along X (joint-fit parabola)", fontsize=9)
+    b.set_title("disparity along X (joint-fit parabola)", fontsize=9, y=1.0)
 
 
 def explore_microscope(preset_name: str = "paper", seed: int = 1, **defaults):
@@ -229,7 +229,10 @@ def model_state(*, model: str = "paper-m2", interval: str = "RA3", seed: int = 1
 def draw_models(state: dict, fig) -> None:
     """3 × 3 residual panels (Figs 13–15 style) with ±interval, and S at the interval (Figs 12/16 style).
 
-    The axes are made once; later calls only update the artists' data (most of an update's time otherwise)."""
+    The axes are made once; later calls only update the artists' data (most of an update's time otherwise). The
+    titles are placed at the top of their axes (``y=1.0``), where matplotlib would put them too (no tick labels or
+    offset text above): left to it, it measures every axis's tick labels again on each draw to see whether they
+    reach above."""
     res, a = state["residuals"], state["interval_mm"]
     art = getattr(fig, "_slmlab_artists", None)
     if art is None:
@@ -242,7 +245,7 @@ def draw_models(state: dict, fig) -> None:
                 line, = ax.plot([], [], ",", color="tab:blue")
                 hi = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
                 lo = ax.axhline(0, color="tab:red", ls="--", lw=0.8)
-                ax.set_title(f"E$_{{{seq},{comp}}}$ [µm]", fontsize=8)
+                ax.set_title(f"E$_{{{seq},{comp}}}$ [µm]", fontsize=8, y=1.0)
                 ax.tick_params(labelsize=6)  # every panel its own scale, so every panel its own labels
                 ax.set_xlabel(f"Δ{seq} [mm]", fontsize=7, labelpad=1)
                 ax.xaxis.set_major_locator(MaxNLocator(3))
@@ -253,6 +256,7 @@ def draw_models(state: dict, fig) -> None:
             ax.axhline(95, color="0.4", ls="--", lw=0.8)
             ax.set_xticks(range(3), [f"S$_{{{seq},{c}}}$" for c in "XYZ"], fontsize=7)
             ax.set_ylim(0, 105)
+            ax.set_title("", fontsize=8, y=1.0)
             ax.tick_params(labelsize=6)
             art["bars"][seq] = (ax, bars)
         fig._slmlab_artists = art
@@ -324,7 +328,7 @@ def draw_steps(state: dict, fig) -> None:
     for bar, v in zip(bars, s["relative_std_percent"]):
         bar.set_width(v)
     ax.set_xlim(0, 1.1 * float(s["relative_std_percent"].max()))
-    ax.set_title(f"step {state['step_mm']:.2f} mm, {state['positions']} positions per axis", fontsize=9)
+    ax.set_title(f"step {state['step_mm']:.2f} mm, {state['positions']} positions per axis", fontsize=9, y=1.0)
 
 
 def explore_steps(preset_name: str = "paper", seed: int = 1, **defaults):

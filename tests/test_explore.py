@@ -38,3 +38,19 @@ def test_widgets_respond_and_nothing_leaks():
     models.controls["model"].value = "paper-m0"
     assert models.children[-1].value != first
     assert set(plt.get_fignums()) == before
+
+
+@pytest.mark.parametrize("make", [explore.explore_models, explore.explore_microscope, explore.explore_steps])
+def test_titles_placed_where_matplotlib_would_place_them(make):
+    """The explorers place their titles themselves (``y=1.0``, no re-measuring of the tick labels on each draw):
+    drawn again with matplotlib's own placement (``_autotitlepos``), the figure's pixels are the same."""
+    import numpy as np
+    box = make()
+    fig = box.figure
+    fig.canvas.draw()
+    placed = np.asarray(fig.canvas.buffer_rgba()).copy()
+    assert all(ax._autotitlepos is False for ax in fig.axes)
+    for ax in fig.axes:
+        ax._autotitlepos = True
+    fig.canvas.draw()
+    assert np.array_equal(np.asarray(fig.canvas.buffer_rgba()), placed)
