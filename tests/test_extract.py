@@ -1014,3 +1014,18 @@ def test_sparse_nonzero_finds_what_findnonzero_finds():
             p = cv2.findNonZero(np.ascontiguousarray(m))
             want = (np.empty(0, int), np.empty(0, int)) if p is None else (p[:, 0, 1], p[:, 0, 0])
             assert np.array_equal(ys, want[0]) and np.array_equal(xs, want[1]), shape
+
+
+@pytest.mark.parametrize("pitch, radius, blur", [(14, 4.0, 1.0), (24, 6.0, 2.0)])
+def test_a_dense_plate_s_background_ring_stays_off_the_neighbours(pitch, radius, blur):
+    """Dots whose diameter is over half the pitch (a common DIC target): the ring each dot's background plane is
+    read on reached the neighbours' blur, and pulled the plate's outer dots and those whose neighbours are unevenly
+    spaced (moments 0.133 px RMS at a pitch of 14, 0.039 at 24; the edges 0.036 and 0.010). Read on the ring's
+    pixels clear of the other dots, every estimator is within 0.012 px RMS per coordinate."""
+    n = 9
+    xy, cov, rng = _synthetic_plate(n=n, pitch=pitch, radius=radius, blur=blur, size=(n + 1) * pitch + 40, seed=5)
+    img = np.ascontiguousarray(180 * (1 - 0.5 * cov) + rng.normal(0, 0.5, cov.shape), np.float32)
+    for method in ("moments", "symmetry", "edges", "ellipse"):
+        got = extract_image(img, n, n, method=method).table[["w1", "w2"]].to_numpy()
+        d = np.hypot(*(got[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+        assert len(got) == n * n and np.sqrt(np.mean(d ** 2) / 2) < 0.012, (method, np.sqrt(np.mean(d ** 2) / 2))

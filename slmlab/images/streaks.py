@@ -42,7 +42,8 @@ def strip_columns(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
                   ring: np.ndarray, sat: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Window streaks: each column's offset ``(n, S)`` [grey levels] from the plane ``coef`` of the patches at
     ``base`` (side ``S = 2·half + 1``), the mean of its levels above and below the dot (:func:`_strip_levels`), each
-    less its line across the columns weighted by the column's pixels of the plane's ring ``ring`` ``(S,)`` (the
+    less its line across the columns weighted by the column's pixels of the plane's ring ``ring`` ``(S,)``, or
+    ``(n, S)`` where the patches' planes were read on rings of their own (:func:`slmlab.images.centres.flatten`) (the
     plane took in the streaks' mean and slope there, and a row's level the streaks' share of it). A patch alone
     holds a few pixels per column beside its dot (at 8 grey levels of noise a streak of 10 went unread). A column
     whose two levels differ by more than :data:`STRIP_APART` times the columns' spread of that difference holds
