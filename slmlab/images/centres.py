@@ -111,6 +111,10 @@ class Flat:
 #: a dot's background ring clear of its neighbours (:func:`_ring_crowd`) is used if at least this share of the ring
 #: is left (else the whole ring: a plane from one sector would extrapolate its slope across the dot)
 RING_CLEAR_SHARE = 0.25
+#: a dot whose ring reaches its neighbours (:func:`_crowded`) and that moved more than this from its first guess [px]
+#: is refined again from where it moved to (:func:`refine`; every dot, as ever, beyond 2 px): cleared of the
+#: neighbours about a guess 2.6 px off, a dense plate's ring lay on the dot's own blur, and it ended 3.3 px off
+CROWD_AGAIN_PX = 0.5
 
 
 def coherent(chi: np.ndarray, rho: np.ndarray) -> np.ndarray:
@@ -148,14 +152,15 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
     crowd = (_ring_crowd(np.asarray(clear_of, float).reshape(-1, 2), base, ox[ring], oy[ring], ring_in)
              if clear_of is not None else np.zeros((len(base), int(ring.sum())), bool))
     weight = ring.sum(axis=0)   # each column's pixels of the ring the plane is read on (the streaks' lines)
-    for k in np.flatnonzero(cut | crowd.any(axis=1)):
+    crowded, clear = _clear_rings(crowd, bounds, ox[ring], oy[ring])
+    if len(crowded):             # all at once: on a dense plate every dot's ring reaches its neighbours
+        coef[crowded] = _masked_planes(design, p[crowded][:, ring], clear)
+        weight = np.broadcast_to(weight, (len(base), len(off))).copy()
+        weight[crowded] = clear.astype(np.float64) @ (np.rint(ox[ring] + half).astype(int)[:, None]
+                                                      == np.arange(len(off))[None, :])
+    for k in np.flatnonzero(cut & ~np.isin(np.arange(len(base)), crowded)):
         seen = ((ox[ring] >= bounds[k, 0]) & (ox[ring] <= bounds[k, 1]) & (oy[ring] >= bounds[k, 2])
                 & (oy[ring] <= bounds[k, 3]))
-        clear = seen & ~crowd[k]
-        if crowd[k].any() and clear.sum() >= max(12, RING_CLEAR_SHARE * ring.sum()):
-            seen = clear
-            weight = np.broadcast_to(weight, (len(base), len(off))).copy() if weight.ndim == 1 else weight
-            weight[k] = np.bincount((ox[ring][seen] + half).astype(int), minlength=len(off))
         if seen.sum() >= 12:   # the ring on the image, not the edge's copies (which repeat the dot's blur)
             coef[k] = np.linalg.lstsq(design[seen], p[k][ring][seen], rcond=None)[0]
     column, chi, rho = None, None, None
@@ -196,6 +201,27 @@ def _ring_crowd(dots: np.ndarray, base: np.ndarray, rx: np.ndarray, ry: np.ndarr
     k, off = k[other], off[other]
     np.logical_or.at(crowd, k, np.hypot(rx[None, :] - off[:, :1], ry[None, :] - off[:, 1:]) < clear)
     return crowd
+
+
+def _clear_rings(crowd: np.ndarray, bounds: np.ndarray, rx: np.ndarray, ry: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The dots whose ring reaches another dot (``crowd`` ``(n, R)``, :func:`_ring_crowd`) and keeps enough pixels
+    clear of them and on the image (``bounds``, :class:`Flat`): at least :data:`RING_CLEAR_SHARE` of the ring and 12;
+    their indices ``(m,)`` and those pixels ``(m, R)``."""
+    crowded = np.flatnonzero(crowd.any(axis=1))
+    b = bounds[crowded]
+    clear = ((rx >= b[:, :1]) & (rx <= b[:, 1:2]) & (ry >= b[:, 2:3]) & (ry <= b[:, 3:])) & ~crowd[crowded]
+    ok = clear.sum(axis=1) >= max(12, RING_CLEAR_SHARE * len(rx))
+    return crowded[ok], clear[ok]
+
+
+def _masked_planes(design: np.ndarray, values: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Least-squares planes ``(m, 3)`` of ``values`` ``(m, R)`` at the ring's ``design`` ``(R, 3)``, each on its own
+    pixels ``use`` ``(m, R)``: the normal equations of every dot solved at once."""
+    w = use.astype(np.float64)
+    normal = np.einsum("mr,ri,rj->mij", w, design, design)
+    rhs = np.einsum("mr,ri->mi", w * values.astype(np.float64), design)
+    return np.linalg.solve(normal, rhs[..., None])[..., 0]
 
 
 def _clipped_patches_alone(column: np.ndarray, p: np.ndarray, plane: np.ndarray, outside: np.ndarray, sat: float
@@ -254,7 +280,7 @@ def profile_radius(flat: Flat, radius: float) -> float:
 
 def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
                    iterations: int = 3, reach: float | None = None, columns: np.ndarray | None = None,
-                   clipped_alone: bool = False) -> np.ndarray:
+                   clipped_alone: bool = False, clear_of: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres by the intensity-weighted centroid of the flat-fielded contrast ``1 − I/B``.
 
     ``B`` is a plane fitted per dot on a ring outside the dot and its blur, so vignetting does not pull the
@@ -265,7 +291,7 @@ def refine_moments(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns, clipped_alone=clipped_alone)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, clipped_alone=clipped_alone, clear_of=clear_of)
     con, ox, oy = _on_disk(flat.contrast, flat, reach)
     for _ in range(iterations):
         c = flat.base + _centroid(con, ox, oy, c - flat.base, reach, flat.bounds)
@@ -317,7 +343,8 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                   rays: int = 48, iterations: int = 2, reach: float | None = None, columns: np.ndarray | None = None
+                   rays: int = 48, iterations: int = 2, reach: float | None = None, columns: np.ndarray | None = None,
+                   clear_of: np.ndarray | None = None
                    ) -> np.ndarray:
     """Sub-pixel centres from an ellipse fitted to the half-contrast crossings along ``rays`` rays.
 
@@ -329,7 +356,7 @@ def refine_ellipse(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, d
     if len(c) == 0:
         return c
     r = float(np.median(radii))
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, clear_of=clear_of)
     img = as_float(img)  # once, for the samples of every iteration
     t = np.linspace(0, 2 * np.pi, rays, endpoint=False)
     steps = np.linspace(0.0, 1.0, 96)
@@ -453,23 +480,25 @@ def dot_reach(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: boo
 
 
 def flat_patches(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float | None = None,
-                 columns: np.ndarray | None = None, beyond: int | None = None, clipped_alone: bool = False):
+                 columns: np.ndarray | None = None, beyond: int | None = None, clipped_alone: bool = False,
+                 clear_of: np.ndarray | None = None):
     """Flat-fielded contrast patches (:func:`flatten`, ``columns`` too) on a ring just outside the dots'
     reach, measured by :func:`dot_reach` unless given [px]; and the reach. ``beyond``: the contrast only
-    within the reach plus this many pixels (the whole patch if ``None``). The ring keeps clear of the other dots of
-    ``centres`` (all of the image's, as :func:`refine` gives them; the few it refines again, alone, do not)
-    where it reaches them, but for the model fit (``clipped_alone``)."""
+    within the reach plus this many pixels (the whole patch if ``None``). The ring keeps clear of the dots at
+    ``clear_of`` (by default ``centres``: all of the image's, as :func:`refine` gives them) where it reaches them, but
+    for the model fit (``clipped_alone``)."""
     reach = dot_reach(img, centres, radii, dark) if reach is None else reach
     crop = None if beyond is None else int(np.ceil(reach)) + beyond
     # the model fit's patches (``clipped_alone``) keep the whole ring: its own quadratic background reads every pixel
     # of the dot's reach, the ring only starts it
     return flatten(img, centres, reach + 1, dark, columns, crop, clipped_alone=clipped_alone,
-                   clear_of=None if clipped_alone else centres), reach
+                   clear_of=None if clipped_alone else (centres if clear_of is None else clear_of)), reach
 
 
 
 def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                 iterations: int = 1, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
+                 iterations: int = 1, reach: float | None = None, columns: np.ndarray | None = None,
+                 clear_of: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres ``(n, 2)`` [px] from a conic fitted to the dots' half-contrast crossings.
 
     The contrast is flat-fielded (:func:`flatten`: a plane fitted per dot on a ring outside the dot and its
@@ -487,7 +516,7 @@ def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dar
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns, beyond=2)   # crossings within the reach + 2 px
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, beyond=2, clear_of=clear_of)   # crossings within the reach + 2 px
     r = float(np.median(radii))
     core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
     level = 0.5 * np.median(flat.contrast[:, core], axis=1)
@@ -1025,7 +1054,8 @@ def _half_disk(reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: bool = True,
-                    iterations: int = 4, reach: float | None = None, columns: np.ndarray | None = None) -> np.ndarray:
+                    iterations: int = 4, reach: float | None = None, columns: np.ndarray | None = None,
+                    clear_of: np.ndarray | None = None) -> np.ndarray:
     """Sub-pixel centres as the points of symmetry of the flat-fielded contrast ``C``: Gauss-Newton on
     ``Σ_u w(u) r(u)²``, ``r(u) = C(c + u) − C(c − u)``, over the pixel offsets ``u`` of a disk reaching as far as
     the dots' blur (:func:`dot_reach`), bilinear samples, the Jacobian from their central differences.
@@ -1047,7 +1077,7 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns)
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, clear_of=clear_of)
     bad = ~np.isfinite(flat.contrast).all(axis=(1, 2))             # a NaN pixel: that dot's centre is NaN
     con = np.where(bad[:, None, None], np.float32(0), flat.contrast)
     ux, uy, w = _half_disk(reach)
@@ -1122,8 +1152,9 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
     """Sub-pixel centres ``(n, 2)`` [px] by the estimator ``method`` (:data:`METHODS`), the dots' reach measured once
     (:func:`dot_reach`); on an image crossed by window streaks (:func:`streak_mask`) the columns of each dot they
     cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a
-    coarse first guess) are refined again from where they moved to, flat-fielded on a ring around their new place
-    (not a dot ``fit`` with its outline held, half in a clipped streak: its moments there would start it from the
+    coarse first guess), and those whose rings reach the neighbours (:func:`_crowded`) that moved more than
+    :data:`CROWD_AGAIN_PX`, are refined again from where they moved to, flat-fielded on a ring around their new place
+    clear of every dot where it now is (not a dot ``fit`` with its outline held, half in a clipped streak: its moments there would start it from the
     visible part's centroid again, without the neighbours that hold its outline)."""
     c = np.asarray(centres, float)
     if len(c) == 0:
@@ -1136,7 +1167,21 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
         xy, held = _fit_centres(img, c, radii, dark, FIT_ITERATIONS, reach, columns)
     else:
         xy, held = fn(img, c, radii, dark=dark, reach=reach, columns=columns), np.zeros(len(c), bool)
-    again = (np.hypot(*(xy - c).T) > 2.0) & ~held
-    if again.any():
-        xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach, columns=columns)
+    moved = np.hypot(*(xy - c).T)
+    again = (moved > 2.0) & ~held
+    if method != "fit":   # a ring cleared of the neighbours about a first guess this far off lay on the dot's own blur
+        again |= (moved > CROWD_AGAIN_PX) & _crowded(c, reach)
+    if again.any():   # the ring cleared of every dot where they are now, not of the few alone
+        kw = {} if method == "fit" else {"clear_of": xy.copy()}
+        xy[again] = fn(img, xy[again], radii[again], dark=dark, reach=reach, columns=columns, **kw)
     return xy
+
+
+def _crowded(centres: np.ndarray, reach: float) -> np.ndarray:
+    """Which dots' background rings (1 to 5 px beyond ``reach`` [px], :func:`flat_patches`) reach another dot's
+    blur (within ``reach`` of it): :func:`_ring_crowd`'s dots, from the centres alone."""
+    c = np.asarray(centres, float)
+    if len(c) < 2:
+        return np.zeros(len(c), bool)
+    d = cKDTree(np.nan_to_num(c, nan=-1e9)).query(np.nan_to_num(c, nan=-1e9), k=2)[0][:, 1]
+    return d < 2 * reach + 5
