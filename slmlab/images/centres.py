@@ -129,8 +129,8 @@ def flatten(img: np.ndarray, centres: np.ndarray, ring_in: float, dark: bool, co
             crop: int | None = None, clipped_alone: bool = False, clear_of: np.ndarray | None = None) -> Flat:
     """:class:`Flat` patches of ``img`` around ``centres`` ``(n, 2)`` [px], the background fitted outside
     ``ring_in`` [px] (a plane on a 4 px ring; on its pixels clear of the dots at ``clear_of`` ``(m, 2)`` [px], every
-    dot of the image, where the ring reaches them: :func:`_ring_crowd`; with ``columns``, the image's pixels clear of every dot
-    (:func:`slmlab.images.streaks.clear_of_dots`), plus per column its offset from the plane along a strip through
+    dot of the image, where the ring reaches them: :func:`_ring_crowd`; with ``columns``, the image's pixels clear
+    of every dot (:func:`slmlab.images.streaks.clear_of_dots`), plus per column its offset from the plane along a strip through
     the dot, where the offsets stand out of the noise alike above and below it and, for bright dots, change the
     plate's light by at most :data:`STREAK_DEPTH`: window streaks run along the columns,
     :func:`slmlab.images.streaks.strip_columns`); ``crop``: the contrast (and ``ox, oy``, ``column``) only within
@@ -516,7 +516,8 @@ def refine_edges(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dar
     c = np.asarray(centres, float).copy()
     if len(c) == 0:
         return c
-    flat, reach = flat_patches(img, c, radii, dark, reach, columns, beyond=2, clear_of=clear_of)   # crossings within the reach + 2 px
+    # crossings within the reach + 2 px
+    flat, reach = flat_patches(img, c, radii, dark, reach, columns, beyond=2, clear_of=clear_of)
     r = float(np.median(radii))
     core = np.hypot(flat.ox, flat.oy) <= max(0.5 * r, 1.0)
     level = 0.5 * np.median(flat.contrast[:, core], axis=1)
@@ -1154,8 +1155,9 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
     cross are flat-fielded one by one (:func:`flatten`); dots that moved more than two pixels from ``centres`` (a
     coarse first guess), and those whose rings reach the neighbours (:func:`_crowded`) that moved more than
     :data:`CROWD_AGAIN_PX`, are refined again from where they moved to, flat-fielded on a ring around their new place
-    clear of every dot where it now is (not a dot ``fit`` with its outline held, half in a clipped streak: its moments there would start it from the
-    visible part's centroid again, without the neighbours that hold its outline)."""
+    clear of every dot where it now is (not a dot ``fit`` with its outline held, half in a clipped streak: its
+    moments there would start it from the visible part's centroid again, without the neighbours that hold its
+    outline)."""
     c = np.asarray(centres, float)
     if len(c) == 0:
         return c.reshape(0, 2).copy()
@@ -1179,9 +1181,12 @@ def refine(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, dark: boo
 
 def _crowded(centres: np.ndarray, reach: float) -> np.ndarray:
     """Which dots' background rings (1 to 5 px beyond ``reach`` [px], :func:`flat_patches`) reach another dot's
-    blur (within ``reach`` of it): :func:`_ring_crowd`'s dots, from the centres alone."""
-    c = np.asarray(centres, float)
-    if len(c) < 2:
-        return np.zeros(len(c), bool)
-    d = cKDTree(np.nan_to_num(c, nan=-1e9)).query(np.nan_to_num(c, nan=-1e9), k=2)[0][:, 1]
-    return d < 2 * reach + 5
+    blur (within ``reach`` of it): :func:`_ring_crowd`'s dots, from the centres alone (a NaN centre: not)."""
+    c = np.asarray(centres, float).reshape(-1, 2)
+    ok = np.isfinite(c).all(axis=1)
+    out = np.zeros(len(c), bool)
+    if ok.sum() < 2:
+        return out
+    d = cKDTree(c[ok]).query(c[ok], k=2)[0][:, 1]
+    out[ok] = d < (reach + 5) + reach      # the ring's outer edge, and the neighbour's blur
+    return out
