@@ -3,7 +3,9 @@
 ``python -m slmlab.run_notebooks [--jobs N] NB.ipynb ...`` runs them (``N`` at a time, each in its own kernel),
 with the working directory set to the notebook's folder, and fails (exit 1) if one raises. With
 ``--durations FILE`` (JSON, notebook name to seconds) the notebooks that took longest last time start first, and
-the file is updated: two at a time, starting the longest last would leave one core idle at the end. Outputs
+the file is updated: two at a time, starting the longest last would leave one core idle at the end. A notebook
+the file does not time (a fresh clone's first run) is placed by the seconds its metadata expects at full size
+(``"slmlab": {"full_size_seconds": ...}``, a scheduling hint only: relative, from one machine). Outputs
 are not written back: notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
 """
 
@@ -18,7 +20,7 @@ from pathlib import Path
 
 from .io import atomic_write_text
 
-__all__ = ["run_notebook", "longest_first", "main", "THREAD_VARIABLES"]
+__all__ = ["run_notebook", "longest_first", "expected_seconds", "main", "THREAD_VARIABLES"]
 
 #: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL, and OpenCV's own pool,
 #: which reads ``OPENCV_FOR_THREADS_NUM`` when it loads), set to 1 unless given
@@ -55,6 +57,20 @@ def longest_first(paths: list[Path], durations: dict[str, float]) -> list[Path]:
     return sorted(paths, key=lambda p: (p.name in durations, -durations.get(p.name, 0.0), p.name))
 
 
+def expected_seconds(paths: list[Path]) -> dict[str, float]:
+    """The full-size seconds each notebook's metadata expects (``metadata.slmlab.full_size_seconds``), for those
+    that say: the order of a first run, before any duration is recorded."""
+    out = {}
+    for p in paths:
+        try:
+            hint = json.loads(p.read_text()).get("metadata", {}).get("slmlab", {}).get("full_size_seconds")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(hint, (int, float)):
+            out[p.name] = float(hint)
+    return out
+
+
 def _read_durations(path: Path | None) -> dict[str, float]:
     if path is None:
         return {}
@@ -74,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     timing, record = (Path(options[k]) if options[k] else None for k in ("--timing", "--durations"))
     jobs = max(1, int(options["--jobs"]))
     durations = _read_durations(record)
-    paths = longest_first([Path(a) for a in args], durations)
+    paths = [Path(a) for a in args]
+    paths = longest_first(paths, {**expected_seconds(paths), **durations})
     if not paths:
         print("usage: python -m slmlab.run_notebooks [--timing FILE] [--durations FILE] [--jobs N] NOTEBOOK.ipynb ...",
               file=sys.stderr)
