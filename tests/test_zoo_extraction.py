@@ -27,7 +27,8 @@ from slmlab.virtual.designs import simulate_design
 from slmlab.studies import realrigs
 from slmlab.studies.extraction import (_degradation_row, extraction_by_degradation, plate_in_view_set,
                                        rig_extraction_errors)
-from slmlab.virtual.floor import CELL, fisher_floor, rendered_floor
+from slmlab.virtual import floor
+from slmlab.virtual.floor import CELL, fisher_floor, rendered_floor, rendered_floors
 from slmlab.virtual.render import (Degradations, render_board_set, render_plate, render_rig_set, render_set,
                                    rendered_truth, rig_degradations)
 from slmlab.virtual.rigs import make_rig, random_rig, rig_by_name
@@ -445,6 +446,44 @@ def test_the_floor_with_the_light_unknown_is_the_whole_fisher_matrixs():
     known, unknown = fisher_floor(*args)[0], fisher_floor(*args, amplitude=spot)[0]
     assert np.allclose(unknown, expected, rtol=1e-4), (unknown, expected)
     assert (unknown > 1.05 * known).all(), (unknown, known)
+
+
+def test_the_floor_in_batches_is_each_dots_own_sum(monkeypatch):
+    """The floor's batches (a box per dot, :data:`slmlab.virtual.floor.BATCH_PX`, made small here so that the
+    dots fall in several) hold each dot's sum over its own cell and nothing else: the same as summing one dot at a
+    time over the pixels nearer it than CELL of its nearest neighbour, also for dots cut by the image's edge or
+    outside it, and for pixels that carry nothing."""
+    rng = np.random.default_rng(5)
+    h, w = 50, 70
+    gx, gy, amp = (rng.normal(size=(h, w)) for _ in range(3))
+    variance = rng.uniform(1.0, 4.0, (h, w))
+    usable = rng.uniform(size=(h, w)) > 0.1
+    centres = np.array([[10.2, 12.7], [31.5, 10.1], [52.9, 14.4], [1.3, 40.2], [69.6, 48.8], [35.0, 30.0],
+                        [-30.0, 25.0]])
+    monkeypatch.setattr(floor, "BATCH_PX", 300)
+    got = fisher_floor(gx, gy, variance, usable, centres), fisher_floor(gx, gy, variance, usable, centres, amp)
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    dist = np.hypot(*(centres[:, None] - centres[None]).transpose(2, 0, 1))
+    np.fill_diagonal(dist, np.inf)
+    for k, ((x, y), r) in enumerate(zip(centres, CELL * dist.min(axis=1))):
+        cell = (np.hypot(xx - x, yy - y) <= r) & usable
+        rows = [gx[cell], gy[cell], np.ones(cell.sum()), (xx[cell] - x) / r, (yy[cell] - y) / r, amp[cell]]
+        for light, found in ((2, got[0][k]), (6, got[1][k])):
+            if not cell.any():
+                assert np.isinf(found).all(), (k, found)
+                continue
+            jac = np.array(rows[:light])
+            expected = np.sqrt(np.diag(np.linalg.inv(jac / variance[cell] @ jac.T))[:2])
+            assert np.allclose(found, expected, rtol=1e-9), (k, light, found, expected)
+
+
+def test_floors_for_many_cameras_are_each_cameras_own():
+    """:func:`rendered_floors` draws a view's coverage once for the cameras that blur it alike: its tables are
+    bit for bit those of :func:`rendered_floor` for each camera, whether it shares the blur or not."""
+    cal = plate_in_view_set(rig_by_name("greenough"), 1)
+    cams = [rig_degradations("greenough", name) for name in ("noise", "defocus", "low contrast", "the rig's camera")]
+    for together, camera in zip(rendered_floors(cal, cams), cams):
+        pd.testing.assert_frame_equal(together, rendered_floor(cal, camera), check_exact=True)
 
 
 def test_a_rendered_dots_floor_falls_with_contrast_and_has_none_where_clipped():

@@ -20,9 +20,9 @@ from ..images.dots import read_image
 from ..images.extract import extract_image_methods
 from ..images.imageset import TRACKED, extract_set
 from ..virtual.designs import simulate_design
-from ..virtual.floor import rendered_floor
+from ..virtual.floor import rendered_floors
 from ..virtual.microscope import from_dict
-from ..virtual.render import DEGRADATIONS, render_rig_set, rendered_truth, rig_degradations
+from ..virtual.render import DEGRADATIONS, render_rig_set, rendered_truth, rig_degradations, set_camera
 from ..virtual.sessions import Session
 from ..virtual.simulate import simulate_set
 
@@ -207,7 +207,7 @@ def rig_extraction_errors(points: pd.DataFrame, cal: CalibrationSet) -> pd.DataF
 
 def _degradation_row(errors: pd.DataFrame, floor: pd.DataFrame) -> dict:
     """One row of :func:`extraction_by_degradation` from :func:`rig_extraction_errors` and the set's
-    :func:`slmlab.virtual.floor.rendered_floor`."""
+    :func:`slmlab.virtual.floor.rendered_floors`."""
     vis = errors[errors["visible"]].merge(floor, on=["sequence", "position", "view", "row", "col"], how="left",
                                           validate="many_to_one")
     dist = np.hypot(vis["err1"], vis["err2"])
@@ -232,6 +232,20 @@ def plate_in_view_set(rig, seed: int = 1) -> CalibrationSet:
     return simulate_set(rig, session, seed=seed)
 
 
+def _extract_degraded(cal: CalibrationSet, folder: Path, camera, method: str) -> tuple:
+    """A set rendered with ``camera`` into ``folder`` and extracted as a user would: its
+    :func:`rig_extraction_errors`, ``extract``'s notes (one, ``not extracted: ...``, where it refused) and the
+    rendered set as read back."""
+    d = write_set(folder, cal)
+    render_rig_set(cal, d, camera, progress=False, compress=False)
+    rendered = read_set(d)
+    try:
+        pts, notes = extract_set(d, method=method, progress=False)
+    except SlmlabError as exc:
+        pts, notes = rendered.points.iloc[:0], [f"not extracted: {exc.reason}"]
+    return rig_extraction_errors(pts, rendered), notes, rendered
+
+
 def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design: str | None = None, seed: int = 1,
                               method: str = "auto", folder: str | Path | None = None) -> pd.DataFrame:
     """Extraction on every rig of the zoo under every degradation (:data:`slmlab.virtual.render.DEGRADATIONS`):
@@ -244,7 +258,7 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     * ``images``, ``visible_dots`` (whole in the image, above a text strip);
     * ``found_percent`` (found and numbered as the truth, within 0.3 of the dot spacing), ``misnumbered``;
     * ``rms_px`` (per coordinate) and ``max_px`` (the largest centre error) of the found dots, and ``floor_px``,
-      the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floor`: what no
+      the RMS of their Cramér-Rao floors per coordinate (:func:`slmlab.virtual.floor.rendered_floors`: what no
       estimator can beat under that camera's noise), and ``light_floor_px``, the same with the dots' light unknown
       (each dot's contrast and a plane of background under it: what an estimator that measures them from the
       dot's own pixels cannot beat);
@@ -262,18 +276,13 @@ def extraction_by_degradation(rigs, degradations=tuple(DEGRADATIONS), *, design:
     rows = []
     for rig in rigs:
         cal = plate_in_view_set(rig, seed) if design is None else simulate_design(rig, design, seed=seed)
-        for k, name in enumerate(degradations):
-            d = write_set(base / f"{rig.preset}-{k:02d}", cal)
-            render_rig_set(cal, d, rig_degradations(rig.kind, name), progress=False, compress=False)
-            rendered = read_set(d)
-            try:
-                pts, notes = extract_set(d, method=method, progress=False)
-            except SlmlabError as exc:
-                pts, notes = rendered.points.iloc[:0], [f"not extracted: {exc.reason}"]
+        done = [_extract_degraded(cal, base / f"{rig.preset}-{k:02d}", rig_degradations(rig.kind, name), method)
+                for k, name in enumerate(degradations)]
+        floors = rendered_floors(done[0][2], [set_camera(rendered) for _, _, rendered in done]) if done else []
+        for name, (errors, notes, _), floor in zip(degradations, done, floors):
             chosen = sorted({n.split("centres by ")[1].split(" ")[0] for n in notes if "centres by " in n})
             tracked = sum(int(k) for n in notes for k in re.findall(re.escape(TRACKED) + r" \((\d+)\)", n))
-            rows.append({"degradation": name, "rig": rig.preset,
-                         **_degradation_row(rig_extraction_errors(pts, rendered), rendered_floor(rendered)),
+            rows.append({"degradation": name, "rig": rig.preset, **_degradation_row(errors, floor),
                          "method": "/".join(chosen) or method, "tracked_images": tracked,
                          "note": next((n for n in notes if n.startswith("not extracted")), "")})
     return pd.DataFrame(rows)

@@ -31,6 +31,8 @@ the symmetry further: there both are optimistic.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
@@ -39,12 +41,49 @@ from ..io import CalibrationSet
 from .render import Degradations, dot_coverage, expected_image, noise_variance, rig_views, set_camera, view_dots
 from .rigs import rig_from_dict
 
-__all__ = ["SHIFT_PX", "CELL", "fisher_floor", "view_floor", "rendered_floor"]
+__all__ = ["SHIFT_PX", "CELL", "BATCH_PX", "fisher_floor", "view_coverage", "view_floor", "rendered_floors", "rendered_floor"]
 
 #: the dots are moved by ± this much [px] for the rendering's gradient
 SHIFT_PX = 0.05
 #: a dot's information is summed over the pixels within this share of the distance to its nearest neighbour
 CELL = 0.45
+#: pixels per batch of dots in :func:`fisher_floor` (bounds its memory: about 50 bytes a pixel)
+BATCH_PX = 2 ** 20
+
+
+def _box_px(radius: np.ndarray, shape: tuple[int, int]) -> int:
+    """The side [px] of a box that holds the cell of radius ``radius`` [px] of any dot in an image of ``shape``."""
+    return min(2 * int(np.ceil(radius.max())) + 2, max(shape))
+
+
+def _cells(centres_px: np.ndarray, radius: np.ndarray, shape: tuple[int, int]):
+    """The pixels of each dot's cell (module docstring), as one box per dot (:func:`_box_px`, from the cell's
+    corner or the image's edge): the boxes' pixel coordinates ``xx, yy`` ``(n, b, b)`` (clipped into the image)
+    and which of them are in the cell ``(n, b, b)``."""
+    h, w = shape
+    grid = np.arange(_box_px(radius, shape))
+    x0 = np.maximum(np.floor(centres_px[:, 0] - radius).astype(int), 0)
+    y0 = np.maximum(np.floor(centres_px[:, 1] - radius).astype(int), 0)
+    xx, yy = np.broadcast_arrays(x0[:, None, None] + grid[None, None, :], y0[:, None, None] + grid[None, :, None])
+    inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
+    cell = inside & (np.hypot(xx - centres_px[:, 0, None, None], yy - centres_px[:, 1, None, None])
+                     <= radius[:, None, None])
+    return np.clip(xx, 0, w - 1), np.clip(yy, 0, h - 1), cell
+
+
+def _floor_from_info(info: np.ndarray, light: bool) -> np.ndarray:
+    """Each dot's floor ``(n, 2)`` [px] from its Fisher matrices ``(n, k, k)``: the centre's block of the
+    inverse, ``inf`` where the centre has no information or (``light``) nothing tells the light from it."""
+    out = np.full((len(info), 2), np.inf)
+    ok = np.linalg.det(info[:, :2, :2]) > 0
+    if not light:
+        out[ok] = np.sqrt(np.diagonal(np.linalg.inv(info[ok]), axis1=1, axis2=2))
+        return out
+    d = np.sqrt(np.maximum(np.diagonal(info, axis1=1, axis2=2), 1e-300))  # unit-free: scaled to a unit diagonal
+    scaled = info / (d[:, :, None] * d[:, None, :])
+    ok[ok] = np.linalg.cond(scaled[ok]) <= 1e10   # else: a cell with no background in view
+    out[ok] = np.sqrt(np.diagonal(np.linalg.inv(scaled[ok]), axis1=1, axis2=2)[:, :2]) / d[ok, :2]
+    return out
 
 
 def fisher_floor(grad_x: np.ndarray, grad_y: np.ndarray, variance: np.ndarray, usable: np.ndarray,
@@ -57,53 +96,54 @@ def fisher_floor(grad_x: np.ndarray, grad_y: np.ndarray, variance: np.ndarray, u
     of background under it (level and slopes) estimated with its centre, the bound the centre's block of the
     inverse 6 × 6 Fisher matrix. A dot without information is ``inf``."""
     h, w = variance.shape
-    c = np.asarray(centres_px, float)
+    c = np.asarray(centres_px, float).reshape(-1, 2)
     radius = CELL * (cKDTree(c).query(c, k=2)[0][:, 1] if len(c) > 1 else np.full(len(c), max(h, w)))
-    weight = np.where(usable, 1.0 / variance, 0.0)
     out = np.full((len(c), 2), np.inf)
-    for k, ((x, y), r) in enumerate(zip(c, radius)):
-        x0, x1 = max(int(np.floor(x - r)), 0), min(int(np.ceil(x + r)) + 1, w)
-        y0, y1 = max(int(np.floor(y - r)), 0), min(int(np.ceil(y + r)) + 1, h)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        yy, xx = np.mgrid[y0:y1, x0:x1]
-        cell = np.hypot(xx - x, yy - y) <= r
-        box = (slice(y0, y1), slice(x0, x1))
-        rows = [grad_x[box][cell], grad_y[box][cell]]
+    batch = max(1, BATCH_PX // _box_px(radius, (h, w)) ** 2) if len(c) else 1
+    for s in range(0, len(c), batch):
+        part = slice(s, s + batch)
+        xx, yy, cell = _cells(c[part], radius[part], (h, w))
+        rows = [grad_x[yy, xx], grad_y[yy, xx]]
         if amplitude is not None:   # the light's unknowns: background level and slopes (over the cell), contrast
-            rows += [np.ones(int(cell.sum())), (xx[cell] - x) / r, (yy[cell] - y) / r, amplitude[box][cell]]
-        jac = np.array(rows, float)
-        info = (jac * weight[box][cell]) @ jac.T
-        if np.linalg.det(info[:2, :2]) <= 0:
-            continue   # no information on the centre
-        if amplitude is None:
-            out[k] = np.sqrt(np.diag(np.linalg.inv(info)))
-            continue
-        d = np.sqrt(np.maximum(np.diag(info), 1e-300))   # unit-free: the matrix scaled to a unit diagonal
-        scaled = info / np.outer(d, d)
-        if np.linalg.cond(scaled) > 1e10:
-            continue   # nothing tells the light from the centre (a cell with no background in view)
-        out[k] = np.sqrt(np.diag(np.linalg.inv(scaled))[:2]) / d[:2]
+            r = radius[part, None, None]
+            rows += [np.ones(xx.shape), (xx - c[part, 0, None, None]) / r, (yy - c[part, 1, None, None]) / r,
+                     amplitude[yy, xx]]
+        jac = np.stack(rows, axis=1).astype(float).reshape(len(xx), len(rows), -1)
+        wt = np.where(cell & usable[yy, xx], 1.0 / variance[yy, xx], 0.0).reshape(len(xx), 1, -1)
+        info = np.einsum("nip,njp->nij", jac * wt, jac)
+        out[part] = _floor_from_info(info, amplitude is not None)
     return out
 
 
+def view_coverage(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
+                  deg: Degradations) -> tuple:
+    """What :func:`view_floor` needs of a view's geometry and blur, which most degradations share: the dots'
+    centres ``(n, 2)`` [px], their coverage image (:func:`slmlab.virtual.render.dot_coverage`) and its change
+    as the dots move by ``±SHIFT_PX`` in ``x`` and in ``y`` (two ``(h, w)`` images [coverage per 2·SHIFT_PX])."""
+    size = tuple(rig.image_size_px)
+    centres, ellipses, blur, sigma = view_dots(rig, points_mm, orientation, dot_diameter_mm, side, deg)
+    cover = dot_coverage(size, centres, ellipses, blur, sigma)
+    moves = []
+    for step in ((SHIFT_PX, 0.0), (0.0, SHIFT_PX)):
+        ahead = dot_coverage(size, centres + step, ellipses, blur, sigma)
+        ahead -= dot_coverage(size, centres - step, ellipses, blur, sigma)
+        moves.append(ahead)
+    return centres, cover, moves
+
+
 def view_floor(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
-               deg: Degradations, sensor: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+               deg: Degradations, sensor: np.random.Generator, coverage: tuple | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Cramér-Rao floors ``(n, 2)`` [px] of the centres of dots rendered by
     :func:`slmlab.virtual.render.render_rig_view` (the same arguments; ``sensor``: the camera's stream, for its
     streaks and hot pixels; the bright region is placed beside the dots): with the light known, and with it
     unknown (:func:`fisher_floor`'s ``amplitude``). A plate's markers are left out: they carry no dot's centre,
-    and lie in the holes between the dots' cells."""
-    size = tuple(rig.image_size_px)
-    centres, ellipses, blur, sigma = view_dots(rig, points_mm, orientation, dot_diameter_mm, side, deg)
-    cover = dot_coverage(size, centres, ellipses, blur, sigma)
+    and lie in the holes between the dots' cells. ``coverage``: the view's :func:`view_coverage` for ``deg``,
+    if already drawn."""
+    centres, cover, moves = coverage or view_coverage(rig, points_mm, orientation, dot_diameter_mm, side, deg)
     radiance, gain, hot = expected_image(cover, deg, sensor, centres)
     slope = np.float32(deg.contrast_dn / (2 * SHIFT_PX))
-    grads = []
-    for step in ((SHIFT_PX, 0.0), (0.0, SHIFT_PX)):
-        ahead = dot_coverage(size, centres + step, ellipses, blur, sigma)
-        ahead -= dot_coverage(size, centres - step, ellipses, blur, sigma)
-        grads.append(ahead * slope * gain)
+    grads = [move * slope * gain for move in moves]
     full = float(2 ** deg.bits - 1)
     usable = (radiance > 0.5) & (radiance < full - 0.5)
     if hot is not None:
@@ -115,18 +155,30 @@ def view_floor(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter
             fisher_floor(*grads, variance, usable, centres, amplitude=cover * gain))
 
 
-def rendered_floor(cal: CalibrationSet, deg: Degradations | None = None) -> pd.DataFrame:
-    """The Cramér-Rao floors of every dot of a rendered rig set in every image (:func:`view_floor`):
-    ``sequence, position, view, row, col, floor1_px, floor2_px`` (per coordinate, the light known) and
-    ``light_floor1_px, light_floor2_px`` (the light unknown), keyed as :func:`slmlab.virtual.render.rendered_truth`;
-    NaN for a board's corners (a ChArUco design: no dots). ``deg``: the camera, by default the one the set was
-    rendered with (:func:`slmlab.virtual.render.set_camera`)."""
+def rendered_floors(cal: CalibrationSet, degs: list[Degradations]) -> list[pd.DataFrame]:
+    """The Cramér-Rao floors of every dot of a rendered rig set in every image (:func:`view_floor`), one table
+    per camera of ``degs``: ``sequence, position, view, row, col, floor1_px, floor2_px`` (per coordinate, the
+    light known) and ``light_floor1_px, light_floor2_px`` (the light unknown), keyed as
+    :func:`slmlab.virtual.render.rendered_truth`; NaN for a board's corners (a ChArUco design: no dots). Each
+    view's coverage is drawn once for all the cameras that blur it alike (:func:`view_coverage`)."""
     rig = rig_from_dict(cal.meta["simulator"]["microscope"])
-    deg = deg or set_camera(cal)
-    frames = []
+    frames = [[] for _ in degs]
     for keys, _, p, axes, diam, side, sensor in rig_views(cal, rig):
         none = np.full((len(keys), 2), np.nan)
-        f, light = view_floor(rig, p, axes, diam, side, deg, sensor) if diam > 0 else (none, none)
-        frames.append(keys.assign(floor1_px=f[:, 0], floor2_px=f[:, 1], light_floor1_px=light[:, 0],
-                                  light_floor2_px=light[:, 1]))
-    return pd.concat(frames, ignore_index=True)
+        drawn = {}
+        for k, deg in enumerate(degs):
+            f, light = none, none
+            if diam > 0:
+                blur = view_dots(rig, p, axes, diam, side, deg)[2]
+                key = blur.tobytes()
+                drawn[key] = drawn.get(key) or view_coverage(rig, p, axes, diam, side, deg)
+                f, light = view_floor(rig, p, axes, diam, side, deg, copy.deepcopy(sensor), coverage=drawn[key])
+            frames[k].append(keys.assign(floor1_px=f[:, 0], floor2_px=f[:, 1], light_floor1_px=light[:, 0],
+                                         light_floor2_px=light[:, 1]))
+    return [pd.concat(f, ignore_index=True) for f in frames]
+
+
+def rendered_floor(cal: CalibrationSet, deg: Degradations | None = None) -> pd.DataFrame:
+    """:func:`rendered_floors` for one camera ``deg``, by default the one the set was rendered with
+    (:func:`slmlab.virtual.render.set_camera`)."""
+    return rendered_floors(cal, [deg or set_camera(cal)])[0]
