@@ -7,6 +7,8 @@ the file is updated: two at a time, starting the longest last would leave one co
 the file does not time (a fresh clone's first run) is placed by the seconds its metadata expects at full size
 (``"slmlab": {"full_size_seconds": ...}``, a scheduling hint only: relative, from one machine). Outputs
 are not written back: notebooks stay committed without outputs; what they produce goes to ``$SLMLAB_FIGURES``.
+Each kernel's BLAS runs one thread (:data:`THREAD_VARIABLES`) and, on an x86-64 CPU with AVX2, the same
+kernels (:func:`pinned_blas`), so that the figures' last digits do not depend on the CPU.
 """
 
 from __future__ import annotations
@@ -20,11 +22,29 @@ from pathlib import Path
 
 from .io import atomic_write_text
 
-__all__ = ["run_notebook", "longest_first", "expected_seconds", "main", "THREAD_VARIABLES"]
+__all__ = ["run_notebook", "longest_first", "expected_seconds", "main", "THREAD_VARIABLES", "BLAS_CORE",
+           "pinned_blas"]
 
 #: the thread counts of the numerical libraries a kernel loads (OpenBLAS, OpenMP, MKL, and OpenCV's own pool,
 #: which reads ``OPENCV_FOR_THREADS_NUM`` when it loads), set to 1 unless given
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
+
+
+#: the OpenBLAS kernels (numpy's and SciPy's) a kernel uses on any x86-64 CPU with AVX2 and FMA: OpenBLAS picks
+#: them by the CPU, and the sums of an AVX-512 Intel's kernels round differently from an AMD's, moving iterative
+#: solves (a dot's fitted centre, a pinhole calibration) in the fifth significant digit and so a table's last one
+BLAS_CORE = "Haswell"
+
+
+def pinned_blas(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> dict:
+    """``{"OPENBLAS_CORETYPE": BLAS_CORE}`` where the CPU can run those kernels (its flags, from ``cpuinfo``, hold
+    ``avx2`` and ``fma``), else nothing (another CPU, or no such file: OpenBLAS chooses)."""
+    try:
+        flags = next((line.split(":", 1)[1].split() for line in Path(cpuinfo).read_text().splitlines()
+                      if line.startswith("flags")), [])
+    except (OSError, UnicodeDecodeError):
+        return {}
+    return {"OPENBLAS_CORETYPE": BLAS_CORE} if {"avx2", "fma"} <= set(flags) else {}
 
 
 def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | None = None) -> float:
@@ -39,6 +59,8 @@ def run_notebook(path: str | os.PathLike, *, timeout_s: int = 900, env: dict | N
     os.environ.setdefault("MPLBACKEND", "Agg")
     for var in THREAD_VARIABLES:  # notebooks run side by side, one core each: BLAS and OpenCV threads would fight
         os.environ.setdefault(var, "1")
+    for var, value in pinned_blas().items():  # the same sums on every such CPU: the same figures
+        os.environ.setdefault(var, value)
     try:
         t0 = time.perf_counter()
         NotebookClient(nb, timeout=timeout_s, kernel_name="python3",

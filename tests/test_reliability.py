@@ -276,6 +276,29 @@ def test_results_do_not_depend_on_the_cpu(tmp_path):
         np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, err_msg=key)
 
 
+def test_notebooks_run_on_the_same_blas_kernels_where_the_cpu_can(tmp_path, monkeypatch):
+    """The figures' BLAS is pinned to one set of kernels on any CPU that runs them (AVX2 and FMA), left to
+    OpenBLAS on any other or where the CPU cannot be read; a kernel started by :func:`run_notebook` sees the pin
+    and one BLAS thread."""
+    from slmlab import run_notebooks as rn
+
+    cpu = tmp_path / "cpuinfo"
+    cpu.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx avx2 fma bmi2\n\nprocessor\t: 1\n")
+    assert rn.pinned_blas(cpu) == {"OPENBLAS_CORETYPE": rn.BLAS_CORE}
+    cpu.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx\n")
+    assert rn.pinned_blas(cpu) == {}
+    assert rn.pinned_blas(tmp_path / "absent") == {}
+    monkeypatch.setattr(rn, "pinned_blas", lambda: {"OPENBLAS_CORETYPE": "Sandybridge"})
+    monkeypatch.delenv("OPENBLAS_CORETYPE", raising=False)
+    nb = tmp_path / "env.ipynb"
+    nb.write_text(json.dumps({"nbformat": 4, "nbformat_minor": 5, "metadata": {}, "cells": [
+        {"cell_type": "code", "id": "a", "metadata": {}, "execution_count": None, "outputs": [],
+         "source": "import os, pathlib\npathlib.Path('seen.json').write_text(__import__('json').dumps("
+                   "[os.environ.get('OPENBLAS_CORETYPE'), os.environ.get('OPENBLAS_NUM_THREADS')]))"}]}))
+    rn.run_notebook(nb)
+    assert json.loads((tmp_path / "seen.json").read_text()) == ["Sandybridge", "1"]
+
+
 def test_misindexed_dots_are_reported_not_fatal(work, tmp_path):
     pts = pd.read_csv(work / "points.csv")
     x = pts.index[(pts["sequence"] == "X") & (pts["position"] == 5)]
