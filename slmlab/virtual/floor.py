@@ -41,7 +41,8 @@ from ..io import CalibrationSet
 from .render import Degradations, dot_coverage, expected_image, noise_variance, rig_views, set_camera, view_dots
 from .rigs import rig_from_dict
 
-__all__ = ["SHIFT_PX", "CELL", "BATCH_PX", "fisher_floor", "view_coverage", "view_floor", "rendered_floors", "rendered_floor"]
+__all__ = ["SHIFT_PX", "CELL", "BATCH_PX", "fisher_floor", "view_coverage", "view_floor", "rendered_floors",
+           "rendered_floor"]
 
 #: the dots are moved by ± this much [px] for the rendering's gradient
 SHIFT_PX = 0.05
@@ -65,10 +66,9 @@ def _cells(centres_px: np.ndarray, radius: np.ndarray, shape: tuple[int, int]):
     x0 = np.maximum(np.floor(centres_px[:, 0] - radius).astype(int), 0)
     y0 = np.maximum(np.floor(centres_px[:, 1] - radius).astype(int), 0)
     xx, yy = np.broadcast_arrays(x0[:, None, None] + grid[None, None, :], y0[:, None, None] + grid[None, :, None])
-    inside = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
-    cell = inside & (np.hypot(xx - centres_px[:, 0, None, None], yy - centres_px[:, 1, None, None])
-                     <= radius[:, None, None])
-    return np.clip(xx, 0, w - 1), np.clip(yy, 0, h - 1), cell
+    cell = (xx < w) & (yy < h) & (np.hypot(xx - centres_px[:, 0, None, None], yy - centres_px[:, 1, None, None])
+                                  <= radius[:, None, None])
+    return np.minimum(xx, w - 1), np.minimum(yy, h - 1), cell
 
 
 def _floor_from_info(info: np.ndarray, light: bool) -> np.ndarray:
@@ -115,13 +115,12 @@ def fisher_floor(grad_x: np.ndarray, grad_y: np.ndarray, variance: np.ndarray, u
     return out
 
 
-def view_coverage(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter_mm: float, side: str,
-                  deg: Degradations) -> tuple:
-    """What :func:`view_floor` needs of a view's geometry and blur, which most degradations share: the dots'
-    centres ``(n, 2)`` [px], their coverage image (:func:`slmlab.virtual.render.dot_coverage`) and its change
-    as the dots move by ``±SHIFT_PX`` in ``x`` and in ``y`` (two ``(h, w)`` images [coverage per 2·SHIFT_PX])."""
-    size = tuple(rig.image_size_px)
-    centres, ellipses, blur, sigma = view_dots(rig, points_mm, orientation, dot_diameter_mm, side, deg)
+def view_coverage(size: tuple[int, int], centres: np.ndarray, ellipses: np.ndarray, blur: np.ndarray,
+                  sigma: float) -> tuple:
+    """What :func:`view_floor` needs of a view's dots as :func:`slmlab.virtual.render.view_dots` gives them (in an
+    image of ``size = (width, height)``), which most degradations share: the dots' centres ``(n, 2)`` [px],
+    their coverage image (:func:`slmlab.virtual.render.dot_coverage`) and its change as the dots move by
+    ``±SHIFT_PX`` in ``x`` and in ``y`` (two ``(h, w)`` images [coverage per 2·SHIFT_PX])."""
     cover = dot_coverage(size, centres, ellipses, blur, sigma)
     moves = []
     for step in ((SHIFT_PX, 0.0), (0.0, SHIFT_PX)):
@@ -140,7 +139,10 @@ def view_floor(rig, points_mm: np.ndarray, orientation: np.ndarray, dot_diameter
     unknown (:func:`fisher_floor`'s ``amplitude``). A plate's markers are left out: they carry no dot's centre,
     and lie in the holes between the dots' cells. ``coverage``: the view's :func:`view_coverage` for ``deg``,
     if already drawn."""
-    centres, cover, moves = coverage or view_coverage(rig, points_mm, orientation, dot_diameter_mm, side, deg)
+    if coverage is None:
+        coverage = view_coverage(tuple(rig.image_size_px), *view_dots(rig, points_mm, orientation,
+                                                                      dot_diameter_mm, side, deg))
+    centres, cover, moves = coverage
     radiance, gain, hot = expected_image(cover, deg, sensor, centres)
     slope = np.float32(deg.contrast_dn / (2 * SHIFT_PX))
     grads = [move * slope * gain for move in moves]
@@ -169,9 +171,10 @@ def rendered_floors(cal: CalibrationSet, degs: list[Degradations]) -> list[pd.Da
         for k, deg in enumerate(degs):
             f, light = none, none
             if diam > 0:
-                blur = view_dots(rig, p, axes, diam, side, deg)[2]
-                key = blur.tobytes()
-                drawn[key] = drawn.get(key) or view_coverage(rig, p, axes, diam, side, deg)
+                dots = view_dots(rig, p, axes, diam, side, deg)
+                key = dots[2].tobytes()   # the blur: the rest of the view's dots is the same for every camera
+                if key not in drawn:
+                    drawn[key] = view_coverage(tuple(rig.image_size_px), *dots)
                 f, light = view_floor(rig, p, axes, diam, side, deg, copy.deepcopy(sensor), coverage=drawn[key])
             frames[k].append(keys.assign(floor1_px=f[:, 0], floor2_px=f[:, 1], light_floor1_px=light[:, 0],
                                          light_floor2_px=light[:, 1]))
