@@ -85,6 +85,9 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
             page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=90_000)
             page.get_by_text("Idle", exact=False).first.wait_for(timeout=90_000, state="attached")  # kernel up
             images = page.locator(".jp-OutputArea-output .widget-image")
+            # the waits below poll every 0.5 s: Playwright's default polls on animation frames, which a headless page
+            # with nothing moving may not draw; the first run's figures, there after 6 s, were seen only when the
+            # 60 s wait ran out and the notebook was run again (76 s in all, now 12 s)
             seen = []
             for attempt in range(4):  # a starting kernel or a dialog may swallow the first request
                 try:
@@ -93,21 +96,21 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
                     page.get_by_role("menuitem", name="Run", exact=True).click(timeout=20_000)
                     page.get_by_text("Run All Cells", exact=True).click(timeout=20_000)
                     page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 1",
-                                           timeout=60_000)
+                                           timeout=60_000, polling=500)
                     break
                 except sync_api.TimeoutError:
                     if attempt == 3:
                         page.screenshot(path=str(tmp_path / "failed.png"))
                         raise AssertionError(f"JupyterLab did not run the notebook; dialogs seen: {seen}") from None
             page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 3",
-                                   timeout=180_000)
+                                   timeout=180_000, polling=500)
             handle = page.locator(".jp-OutputArea-output .widget-slider .noUi-handle").nth(2)  # distortion_scale
             handle.scroll_into_view_if_needed()
             first = images.first.get_attribute("src")
             handle.focus()
             page.keyboard.press("ArrowRight")
             page.wait_for_function("(src) => document.querySelector('.jp-OutputArea-output .widget-image').src !== src",
-                                   arg=first, timeout=60_000)
+                                   arg=first, timeout=60_000, polling=500)
             assert images.first.get_attribute("src") != first
             page.screenshot(path=str(tmp_path / "explore.png"), full_page=False)
             assert (tmp_path / "explore.png").stat().st_size > 10_000
