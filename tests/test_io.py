@@ -285,6 +285,7 @@ def _umask() -> int:
     return mask
 
 
+@pytest.mark.slow  # the command line three times, once with images
 def test_a_set_simulated_again_into_its_folder_replaces_it_and_no_other_folder_is_taken(tmp_path):
     """A set simulated with images and then again without: the old stage.csv and images stayed beside the new
     points and truth, and ``extract`` numbered half the dots wrongly against them. The old simulated set's own
@@ -305,6 +306,7 @@ def test_a_set_simulated_again_into_its_folder_replaces_it_and_no_other_folder_i
     assert [p.name for p in other.iterdir()] == ["data.csv"]
 
 
+@pytest.mark.slow  # the command line four times
 def test_calibrate_and_reconstruct_do_not_write_over_their_inputs(tmp_path):
     """``calibrate --out`` onto the set's own points.csv replaced it with the model (and the set could no longer be
     read); ``reconstruct --out`` onto the model file likewise. Both are refused in one line, the inputs untouched."""
@@ -329,6 +331,7 @@ def test_the_cmo_microscope_s_options_beside_a_rig_are_refused_not_ignored(tmp_p
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow  # the command line three times, once with images
 def test_a_microscope_set_simulated_again_loses_its_old_images_and_a_failed_one_keeps_the_old_set(tmp_path):
     """The CMO microscope's images carry no stage.csv: simulated again without images, the old 48 stayed in
     images/ and extract read them (33 % found, 2156 misindexed, from the review). They go now, a file of the

@@ -264,6 +264,7 @@ def test_the_report_says_what_was_found_and_rejected_and_why(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ the command line
+@pytest.mark.slow  # the command line three times, on rendered images
 def test_simulate_a_rig_with_images_then_extract_through_the_command_line(tmp_path):
     d = tmp_path / "piv"
     r = cli("simulate", d, "--rig", "stereo-piv", "--design", "zstack-2", "--images", "--seed", "3")
@@ -292,6 +293,7 @@ def test_a_stepped_target_is_not_rendered_and_nothing_is_written(tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow  # simulate --images, then extract
 @pytest.mark.parametrize("rig, design", [("stereo-piv", "two-level-2z"), ("stereo-dic", "charuco-stack")])
 def test_known_targets_render_and_extract_to_their_truth(rig, design, tmp_path):
     d = tmp_path / "set"
@@ -348,6 +350,7 @@ def test_a_two_level_plate_s_markers_are_read_among_its_dots_and_only_there(rig,
     assert row["found_percent"] >= 99, row.to_dict()
 
 
+@pytest.mark.slow  # the command line four times, on rendered images
 def test_extract_run_again_on_a_known_target_set_compares_by_number_or_says_it_cannot(tmp_path):
     """``extract`` writes points.csv over the simulated one, which held the true places of a two-level plate's dots.
     Run again on a points.csv that has every dot of truth.csv, in its order, the comparison is by number, as the first
