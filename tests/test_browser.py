@@ -85,23 +85,27 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
             page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=90_000)
             page.get_by_text("Idle", exact=False).first.wait_for(timeout=90_000, state="attached")  # kernel up
             images = page.locator(".jp-OutputArea-output .widget-image")
-            # the waits below poll every 0.5 s: Playwright's default polls on animation frames, which a headless page
-            # with nothing moving may not draw; the first run's figures, there after 6 s, were seen only when the
-            # 60 s wait ran out and the notebook was run again (76 s in all, now 12 s)
-            seen = []
-            for attempt in range(4):  # a starting kernel or a dialog may swallow the first request
+            # Run All is sometimes swallowed: the kernel's status reads Idle before the notebook is connected to it,
+            # and no cell is queued (every prompt stays [ ]). A request that was taken queues every cell at once
+            # ([*]), so within seconds it shows whether to ask again; waiting for the first figure instead cost 60 s
+            # per swallowed request (78 s of the browser test's 82 s on a fresh clone). The waits poll every 0.25-0.5 s:
+            # Playwright's default polls on animation frames, which a headless page with nothing moving may not draw.
+            started = "[...document.querySelectorAll('.jp-InputPrompt')].some(p => /\\[[*0-9]/.test(p.textContent))"
+            seen, prompts = [], []
+            for attempt in range(6):
                 try:
                     seen += _dismiss_dialogs(page)
                     page.keyboard.press("Escape")  # close any open menu
                     page.get_by_role("menuitem", name="Run", exact=True).click(timeout=20_000)
                     page.get_by_text("Run All Cells", exact=True).click(timeout=20_000)
-                    page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 1",
-                                           timeout=60_000, polling=500)
+                    page.wait_for_function(started, timeout=15_000, polling=250)
                     break
                 except sync_api.TimeoutError:
-                    if attempt == 3:
+                    prompts = page.locator(".jp-InputPrompt").all_inner_texts()[:4]
+                    if attempt == 5:
                         page.screenshot(path=str(tmp_path / "failed.png"))
-                        raise AssertionError(f"JupyterLab did not run the notebook; dialogs seen: {seen}") from None
+                        raise AssertionError(f"JupyterLab did not run the notebook; dialogs seen: {seen}; "
+                                             f"prompts: {prompts}") from None
             page.wait_for_function("document.querySelectorAll('.jp-OutputArea-output .widget-image').length >= 3",
                                    timeout=180_000, polling=500)
             handle = page.locator(".jp-OutputArea-output .widget-slider .noUi-handle").nth(2)  # distortion_scale
