@@ -91,7 +91,7 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
             # per swallowed request (78 s of the browser test's 82 s on a fresh clone). The waits poll every 0.25-0.5 s:
             # Playwright's default polls on animation frames, which a headless page with nothing moving may not draw.
             started = "[...document.querySelectorAll('.jp-InputPrompt')].some(p => /\\[[*0-9]/.test(p.textContent))"
-            seen, prompts = [], []
+            seen = []
             for attempt in range(6):
                 try:
                     seen += _dismiss_dialogs(page)

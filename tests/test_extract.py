@@ -329,8 +329,8 @@ def _synthetic_plate(n=5, pitch=60, radius=12.0, blur=1.5, size=360, seed=0, asp
     cov = np.zeros((size * k, size * k), np.float32)
     reach = radius * max(1.0, aspect) + 1    # [px] beyond it no subpixel of the dot's ellipse
     for x, y in xy:   # each dot drawn in its own window of subpixels (a whole-image grid per dot took 15 s)
-        rows, cols = (slice(min(max(0, int((c - reach + 0.5) * k)), size * k),
-                            min(max(0, int((c + reach + 0.5) * k) + 1), size * k)) for c in (y, x))
+        rows, cols = (slice(*np.clip([int((at - reach + 0.5) * k), int((at + reach + 0.5) * k) + 1], 0, size * k))
+                      for at in (y, x))
         yy, xx = (np.mgrid[rows, cols] + 0.5) / k - 0.5
         along, across = cos * (xx - x) + sin * (yy - y), -sin * (xx - x) + cos * (yy - y)
         cov[rows, cols][(along / aspect) ** 2 + across ** 2 <= radius ** 2] = 1
