@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import SlmlabError
 from .overlay import outside_nil, overlay_rows, picture_rows, within
-from .robust import mad, masked_median
+from .robust import mad, masked_median, median_by_sort
 
 __all__ = ["grey_image", "LOWEST_SIGMA", "LEVELS", "SECOND_LEVEL", "SPLIT_AREA_PX", "NCC_MIN", "NCC_STRONG", "SEARCH_SIGMA",
            "STRONG_SHARE", "STRONG_SIGMA",
@@ -303,7 +303,7 @@ class ContrastMesh:
     def streaky(self, dark: bool) -> bool:
         """Whether more than :data:`STREAK_SHARE` of the columns' offsets that both quartiles agree on stand out
         of the noise (the spread for ``dark`` or bright dots): window streaks, which move a whole column."""
-        return bool(np.mean(np.abs(self.streaks[2][::8]) > np.median(self.spreads[int(dark)])) > STREAK_SHARE)
+        return bool(np.mean(np.abs(self.streaks[2][::8]) > median_by_sort(self.spreads[int(dark)])) > STREAK_SHARE)
 
     def contrast(self, dark: bool, sided: bool = True) -> Contrast:
         """The local contrast for dark or bright dots; on a streaky image (:meth:`streaky`) the columns' offsets

@@ -311,18 +311,18 @@ def _recover(contrast, cand: Candidates, fit: LatticeFit, grow: int, shape, marg
     (:func:`_line_supported`, on all the nodes searched so far). With ``repeat``, the box keeps growing by one
     line while lines yield dots. Returns searched nodes, found mask, positions [px] and significance."""
     dots, radius = cand.xy[fit.on], float(np.sqrt(np.median(cand.area[fit.on]) / np.pi))
-    done = {tuple(n) for n in fit.node[fit.on]}
+    done = set(map(tuple, fit.node[fit.on].tolist()))
     out, con, now, ring, found = [], None, fit, 0, np.zeros(0, bool)
     while True:
         nodes = fit.nodes(ring)
         p = now.model.predict(nodes)
-        todo = np.array([tuple(n) not in done for n in nodes]) & inside_image(p, shape, margin)
+        todo = np.array([n not in done for n in map(tuple, nodes.tolist())], bool) & inside_image(p, shape, margin)
         before = int(found.sum())
         if todo.any():
             con = contrast() if con is None else con
             out.append((nodes[todo], *search_missing(con, p[todo], now.tolerance(nodes[todo]), dots, radius,
                                                      now.spacing(nodes[todo]))))
-            done |= {tuple(n) for n in nodes[todo]}
+            done |= set(map(tuple, nodes[todo].tolist()))
             searched, hit, where = (np.concatenate([o[i] for o in out]) for i in range(3))
             found = hit & _line_supported(*_plate_axes(fit, searched), hit)
             if found.sum() > before:
@@ -529,7 +529,7 @@ def _anchor(table: pd.DataFrame, pl: PlateLattice, markers: list, rows, cols, *,
         table["row"] = pd.Series(dtype=int)
         table["col"] = pd.Series(dtype=int)
     else:
-        table = table.sort_values(["row", "col"], kind="stable").reset_index(drop=True)
+        table = table.iloc[np.lexsort((table["col"].to_numpy(), table["row"].to_numpy()))].reset_index(drop=True)
     return table, frame, how, note if frame is None else "", window
 
 
@@ -633,7 +633,7 @@ def _site_evidence(loc: _Located, table: pd.DataFrame, margin_px: float):
     def reduced(p):
         r = np.rint(con.to_reduced(p)).astype(int)
         return np.clip(r[:, 1], 0, con.z.shape[0] - 1), np.clip(r[:, 0], 0, con.z.shape[1] - 1)
-    ry, rx = reduced(table[["w1", "w2"]].to_numpy())
+    ry, rx = reduced(np.column_stack([table["w1"].to_numpy(), table["w2"].to_numpy()]))
     bg, spread = con.background[ry, rx], float(np.median(con.spread[ry, rx]))
     pad = 3 * 1.4826 * float(np.median(np.abs(bg - np.median(bg)))) + 3 * spread
     lo, hi = float(bg.min()) - pad, float(bg.max()) + pad
@@ -669,8 +669,8 @@ def _finish(loc: _Located, method: str, rows, cols, anchoring: dict, dot_diamete
         i = nodes @ pl.m.T
         expected = (i[:, 0] >= window[0]) & (i[:, 0] <= window[1]) & (i[:, 1] >= window[2]) & (i[:, 1] <= window[3])
     rep = _report(loc.cand, reason, loc.searched, dropped, expected)
-    spurious = int(rep["reason"].str.startswith("off the lattice (").sum())
-    rejected = int((rep["status"] == "rejected").sum())
+    spurious = sum(why.startswith("off the lattice (") for why in rep["reason"].to_numpy())
+    rejected = int(np.count_nonzero(rep["status"].to_numpy() == "rejected"))
     return ImageDots(table.drop(columns="_src"), len(src_all), rejected, spurious, note, pl, frame, how, markers,
                      loc.dark, rep, loc.cand.noise, loc.hot)
 

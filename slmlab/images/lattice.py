@@ -298,17 +298,22 @@ def _seed(xy: np.ndarray, area: np.ndarray, tries: int = 256, two_level: bool = 
     if two_level:   # a parallax near a quarter pitch also fits a basis sheared by half a cell: the least sheared
         cos = np.abs(_cos(u[best] + v[best], u[best] - v[best]))
         best = best[cos <= cos.min() + 0.1]
-    seeds = [_Seed(int(idx[k]), u[k], v[k], p[k]) for k in best]
     step = np.minimum(np.hypot(*u[best].T), np.hypot(*v[best].T))
     if two_level and step.max() > 1.2 * step.min():   # one level alone, steps √2 longer, has eight neighbours too
-        seeds = _most_held(xy, area, seeds)
-    return _by_middle(xy, seeds)[0]
+        return _by_middle(xy, _most_held(xy, area, [_Seed(int(idx[k]), u[k], v[k], p[k]) for k in best]))[0]
+    k = best[_middle_order(xy, idx[best])[0]]   # (every inner dot of a plate ties: one seed made, not hundreds)
+    return _Seed(int(idx[k]), u[k], v[k], p[k])
+
+
+def _middle_order(xy: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The order of candidates ``k`` by their distance from their median position (the plate's inner dots first;
+    ties in their given order)."""
+    return np.argsort(np.hypot(*(xy[k] - np.median(xy[k], axis=0)).T), kind="stable")
 
 
 def _by_middle(xy: np.ndarray, seeds: list) -> list:
-    """``seeds`` ordered by their candidate's distance from their median position (the plate's inner dots first)."""
-    centre = np.median([xy[s.k] for s in seeds], axis=0)
-    return sorted(seeds, key=lambda s: np.hypot(*(xy[s.k] - centre)))
+    """``seeds`` ordered by their candidate's distance from their median position (:func:`_middle_order`)."""
+    return [seeds[i] for i in _middle_order(xy, np.array([s.k for s in seeds]))]
 
 
 #: on a two-level plate, seeds whose lattices hold within this share of the best share of the candidates around

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["median_of_integers", "mad", "robust_sigma", "midmean", "masked_median"]
+__all__ = ["median_of_integers", "median_by_sort", "mad", "robust_sigma", "midmean", "masked_median"]
 
 
 def median_of_integers(v: np.ndarray) -> float:
@@ -18,6 +18,15 @@ def median_of_integers(v: np.ndarray) -> float:
     n = len(v)
     at = np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right") + lo   # the middle order statistic(s)
     return float(at.mean())
+
+
+def median_by_sort(v: np.ndarray):
+    """``np.median`` of all of ``v``'s values (a float array), the same number, by NumPy's vectorised sort: on an
+    image's quarter of a million values it is several times faster than the partition ``np.median`` runs."""
+    s = np.sort(np.asarray(v).ravel())
+    if len(s) == 0 or np.isnan(s[-1]):   # (np.median's answer there: NaN, with its warning)
+        return np.median(s)
+    return np.mean(s[(len(s) - 1) // 2:len(s) // 2 + 1])
 
 
 def mad(d: np.ndarray, *, integers: bool) -> float:

@@ -88,11 +88,12 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     reach = STRIP_HALVES * half
     oy, ox = np.arange(-reach, reach + 1), np.arange(-half, half + 1)
     ys, xs = base[:, 1, None] + oy, base[:, 0, None] + ox
-    yc, xc = np.clip(ys, 0, h - 1)[:, :, None], np.clip(xs, 0, w - 1)[:, None, :]
-    values = img[yc, xc]
-    use = free[yc, xc]
-    if (ys < 0).any() or (ys >= h).any() or (xs < 0).any() or (xs >= w).any():   # a strip beyond the image
-        use &= (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
+    if (ys >= 0).all() and (ys < h).all() and (xs >= 0).all() and (xs < w).all():   # windows: a copy per strip row
+        at = (base[:, 1] - reach, base[:, 0] - half)
+        values, use = (np.lib.stride_tricks.sliding_window_view(a, (len(oy), len(ox)))[at] for a in (img, free))
+    else:   # a strip beyond the image: its pixels there not used
+        yc, xc = np.clip(ys, 0, h - 1)[:, :, None], np.clip(xs, 0, w - 1)[:, None, :]
+        values, use = img[yc, xc], free[yc, xc] & (ys[:, :, None] == yc) & (xs[:, None, :] == xc)
     clipped = clipped_band(use & (values >= sat), oy)
     res = values.astype(np.float32) - (coef[:, 0, None, None] + coef[:, 1, None, None] * ox[None, None, :]
                                        + coef[:, 2, None, None] * oy[None, :, None]).astype(np.float32)
