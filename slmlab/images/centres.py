@@ -1026,21 +1026,27 @@ def _asymmetry(stack: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray,
     whole pixels: each patch shifted once by its fraction of a pixel, then read at whole pixels. Exact in float
     arithmetic (``cv2.remap`` rounds the fraction to 1/32 px, a 0.01 px floor for a centre estimator). With
     ``jacobian``, also ``∂r/∂f`` along x and y: central differences of the shifted patch, which are the
-    patch's central differences shifted the same way."""
-    n, s, _ = stack.shape
+    patch's central differences shifted the same way. Only the square of the patches that the offsets read is
+    shifted (near convergence every centre is within a pixel of its patch's middle: two thirds of the patch)."""
     whole = np.floor(f)
+    k = whole.astype(np.int64) + stack.shape[1] // 2
+    if len(k):   # the rows and columns read: k ± (max|u| + 1 for the differences), and the bilinear sample's next
+        r = int(max(np.abs(ux).max(initial=0), np.abs(uy).max(initial=0))) + int(jacobian)
+        lo, hi = max(int(k.min()) - r, 0), min(int(k.max()) + r + 2, stack.shape[1])
+        stack, k = stack[:, lo:hi, lo:hi], k - lo
+    n, s, _ = stack.shape
     t = (f - whole).astype(stack.dtype)
     tx, ty = t[:, 0, None, None], t[:, 1, None, None]
     rows = stack[:, :, :-1] + tx * (stack[:, :, 1:] - stack[:, :, :-1])
     shifted = (rows[:, :-1] + ty * (rows[:, 1:] - rows[:, :-1])).reshape(-1)
-    k = whole.astype(np.int64) + s // 2
     at = ((np.arange(n) * (s - 1) + k[:, 1]) * (s - 1) + k[:, 0])[:, None]
     off = uy.astype(np.int64) * (s - 1) + ux.astype(np.int64)
-    r = shifted[at + off] - shifted[at - off]
+    plus, minus = at + off, at - off
+    r = np.take(shifted, plus) - np.take(shifted, minus)
     if not jacobian:
         return r
-    jac = tuple(0.5 * (shifted[at + off + e] - shifted[at + off - e] - shifted[at - off + e] + shifted[at - off - e])
-                for e in (1, s - 1))
+    jac = tuple(0.5 * (np.take(shifted, plus + e) - np.take(shifted, plus - e) - np.take(shifted, minus + e)
+                       + np.take(shifted, minus - e)) for e in (1, s - 1))
     return r, jac
 
 
@@ -1087,12 +1093,12 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
     f = np.clip(f, -room, room)                                   # one centroid step: nearer than the detection's
     w = _seen_pairs(w, ux, uy, f, flat.bounds)
     for _ in range(iterations):                       # Gauss-Newton, the Jacobian at each estimate
-        step, jac = _symmetry_step(con, f, ux, uy, w, None)
+        step, normal = _symmetry_step(con, f, ux, uy, w, None)
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() <= 0.1:
             break
     for _ in range(iterations):                       # the last Jacobian kept: where r = 0 does not change
-        step, _ = _symmetry_step(con, f, ux, uy, w, jac)
+        step, _ = _symmetry_step(con, f, ux, uy, w, normal)
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() < 1e-3:
             break
@@ -1114,20 +1120,22 @@ def _seen_pairs(w: np.ndarray, ux: np.ndarray, uy: np.ndarray, f: np.ndarray, bo
 
 
 def _symmetry_step(con: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarray, w: np.ndarray,
-                   jac: tuple | None) -> tuple[np.ndarray, tuple]:
-    """One Gauss-Newton step ``(n, 2)`` [px] of :func:`refine_symmetry` from patch offsets ``f`` ``(n, 2)``,
-    and the Jacobian used (at ``f`` unless ``jac`` is given)."""
-    if jac is None:
-        r, jac = _asymmetry(con, f, ux, uy, jacobian=True)
+                   normal: tuple | None) -> tuple[np.ndarray, tuple]:
+    """One Gauss-Newton step ``(n, 2)`` [px] of :func:`refine_symmetry` from patch offsets ``f`` ``(n, 2)``, and
+    the normal equations used: the weighted Jacobian ``w·∂r/∂x, w·∂r/∂y`` ``(n, P)`` and the matrix's terms and
+    determinant ``(n,)``, at ``f`` unless ``normal`` (a Jacobian kept) is given."""
+    if normal is None:
+        r, (jx, jy) = _asymmetry(con, f, ux, uy, jacobian=True)
+        wx, wy = w * jx, w * jy
+        a11, a12, a22 = (wx * jx).sum(1), (wx * jy).sum(1), (wy * jy).sum(1)
+        det = a11 * a22 - a12 * a12
+        normal = (wx, wy, a11, a12, a22, np.where(np.abs(det) > 1e-12, det, 1e-12))
     else:
         r = _asymmetry(con, f, ux, uy)
-    jx, jy = jac
-    a11, a12, a22 = (w * jx * jx).sum(1), (w * jx * jy).sum(1), (w * jy * jy).sum(1)
-    b1, b2 = (w * jx * r).sum(1), (w * jy * r).sum(1)
-    det = a11 * a22 - a12 * a12
-    det = np.where(np.abs(det) > 1e-12, det, 1e-12)
+    wx, wy, a11, a12, a22, det = normal
+    b1, b2 = (wx * r).sum(1), (wy * r).sum(1)
     step = -np.column_stack([a22 * b1 - a12 * b2, a11 * b2 - a12 * b1]) / det[:, None]
-    return np.clip(step, -1.0, 1.0), jac
+    return np.clip(step, -1.0, 1.0), normal
 
 
 def streak_mask(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, dark: bool, reach: float
