@@ -619,8 +619,8 @@ def hot_pixel_flags(img: np.ndarray) -> np.ndarray:
     images are not converted."""
     med = cv2.medianBlur(img, 3)
     sub = med[::4, ::4]
-    d = (img[::4, ::4].astype(np.float32) - sub)[sub > sub.min()] if (sub > sub.min()).sum() > 100 else \
-        (img[::4, ::4].astype(np.float32) - sub).ravel()
+    d, lit = img[::4, ::4].astype(np.float32) - sub, sub > sub.min()
+    d = d[lit] if np.count_nonzero(lit) > 100 else d.ravel()
     sigma = 1.4826 * mad(d, integers=img.dtype != np.float32) + 1e-6
     if img.dtype != np.float32:
         sigma = max(sigma, 1.0)                  # at least one grey level
