@@ -1069,3 +1069,12 @@ def test_median_by_sort_is_numpys_median():
         v = rng.normal(size=101).astype(dtype)
         v[7] = np.nan
         assert np.isnan(median_by_sort(v)) and median_by_sort(v).dtype == dtype
+
+
+def test_flatten_without_dots_reads_no_strips():
+    """No dots, window-streak columns asked for: empty patches and columns, on an image smaller than a strip
+    (the strips are read as windows of the image only where there are some)."""
+    from slmlab.images.centres import flatten
+    img = np.full((24, 24), 100, np.uint8)
+    flat = flatten(img, np.zeros((0, 2)), 3.0, True, columns=np.ones(img.shape, bool))
+    assert flat.contrast.shape == (0, 17, 17) and flat.column.shape == (0, 17)

@@ -1097,7 +1097,7 @@ def refine_symmetry(img: np.ndarray, centres: np.ndarray, radii: np.ndarray, *, 
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() <= 0.1:
             break
-    for _ in range(iterations):                       # the last Jacobian kept: where r = 0 does not change
+    for _ in range(iterations):                       # the last normal equations kept: where r = 0 does not change
         step, _ = _symmetry_step(con, f, ux, uy, w, normal)
         f = np.clip(f + step, -room, room)
         if np.abs(step).max() < 1e-3:
@@ -1123,7 +1123,8 @@ def _symmetry_step(con: np.ndarray, f: np.ndarray, ux: np.ndarray, uy: np.ndarra
                    normal: tuple | None) -> tuple[np.ndarray, tuple]:
     """One Gauss-Newton step ``(n, 2)`` [px] of :func:`refine_symmetry` from patch offsets ``f`` ``(n, 2)``, and
     the normal equations used: the weighted Jacobian ``w·∂r/∂x, w·∂r/∂y`` ``(n, P)`` and the matrix's terms and
-    determinant ``(n,)``, at ``f`` unless ``normal`` (a Jacobian kept) is given."""
+    determinant ``(n,)`` (held at 1e-12 where it is smaller in magnitude), at ``f`` unless ``normal`` (those of a
+    Jacobian kept) is given."""
     if normal is None:
         r, (jx, jy) = _asymmetry(con, f, ux, uy, jacobian=True)
         wx, wy = w * jx, w * jy

@@ -88,7 +88,7 @@ def _strip_levels(img: np.ndarray, base: np.ndarray, half: int, coef: np.ndarray
     reach = STRIP_HALVES * half
     oy, ox = np.arange(-reach, reach + 1), np.arange(-half, half + 1)
     ys, xs = base[:, 1, None] + oy, base[:, 0, None] + ox
-    if (ys >= 0).all() and (ys < h).all() and (xs >= 0).all() and (xs < w).all():   # windows: a copy per strip row
+    if len(base) and (ys >= 0).all() and (ys < h).all() and (xs >= 0).all() and (xs < w).all():   # windows of the image
         at = (base[:, 1] - reach, base[:, 0] - half)
         values, use = (np.lib.stride_tricks.sliding_window_view(a, (len(oy), len(ox)))[at] for a in (img, free))
     else:   # a strip beyond the image: its pixels there not used
