@@ -1078,3 +1078,17 @@ def test_flatten_without_dots_reads_no_strips():
     img = np.full((24, 24), 100, np.uint8)
     flat = flatten(img, np.zeros((0, 2)), 3.0, True, columns=np.ones(img.shape, bool))
     assert flat.contrast.shape == (0, 17, 17) and flat.column.shape == (0, 17)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_block_means_are_cv2_area_averages(dtype):
+    """The sweep's reduction of an 8- or 16-bit image, summed in integers, is cv2.resize's area average of the
+    image as float32, bit for bit: every whole factor it takes integers at, full scale included."""
+    from slmlab.images.dots import _block_means
+    rng = np.random.default_rng(3)
+    top = np.iinfo(dtype).max
+    for r in range(2, 16):
+        img = rng.integers(0, top + 1, (9 * r, 7 * r)).astype(dtype)
+        img[:r, :r] = top
+        want = cv2.resize(img.astype(np.float32), (7, 9), interpolation=cv2.INTER_AREA)
+        assert np.array_equal(_block_means(img, r), want)

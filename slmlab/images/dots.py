@@ -265,12 +265,29 @@ def _mesh_statistics(small: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarr
 def _reduced(img: np.ndarray, scale: int | None = None) -> tuple[np.ndarray, int]:
     """The image reduced by ``scale`` (by default :func:`reduction`; area average) and smoothed (Gaussian, 1
     reduced px), and the factor."""
-    f = img if img.dtype == np.float32 else img.astype(np.float32)
-    h, w = f.shape
-    r = reduction(f.shape) if scale is None else max(1, int(scale))
+    h, w = img.shape
+    r = reduction(img.shape) if scale is None else max(1, int(scale))
     # crop to whole blocks so that the reduction is exactly r (reduced pixel i covers pixels r·i … r·i + r − 1)
-    small = cv2.resize(f[:h // r * r, :w // r * r], (w // r, h // r), interpolation=cv2.INTER_AREA) if r > 1 else f
+    if r > 1 and (img.dtype == np.uint8 or (img.dtype == np.uint16 and r <= 15)):
+        small = _block_means(img[:h // r * r, :w // r * r], r)
+    else:
+        f = img if img.dtype == np.float32 else img.astype(np.float32)
+        small = cv2.resize(f[:h // r * r, :w // r * r], (w // r, h // r), interpolation=cv2.INTER_AREA) if r > 1 else f
     return cv2.GaussianBlur(small, (0, 0), 1.0), r
+
+
+def _block_means(img: np.ndarray, r: int) -> np.ndarray:
+    """The mean of each ``r`` × ``r`` block of an 8- or 16-bit image of whole blocks, as float32: the numbers
+    ``cv2.resize``'s area average gives the image as float32 (block sums of whole grey levels, exact below 2²⁴, times
+    the float32 ``1/r²``), summed in integers without a float copy of the image (1 against 3 ms at 2048²)."""
+    acc = np.uint16 if img.dtype == np.uint8 and r <= 16 else np.uint32
+    rows = img[0::r].astype(acc)
+    for k in range(1, r):
+        rows += img[k::r]
+    sums = rows[:, 0::r].copy()
+    for k in range(1, r):
+        sums += rows[:, k::r]
+    return sums.astype(np.float32) * np.float32(1.0 / (r * r))
 
 
 @dataclass
