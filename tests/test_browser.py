@@ -101,8 +101,8 @@ def test_explore_notebook_runs_and_a_slider_updates_the_figure(jupyterlab, tmp_p
                     page.wait_for_function(started, timeout=15_000, polling=250)
                     break
                 except sync_api.TimeoutError:
-                    prompts = page.locator(".jp-InputPrompt").all_inner_texts()[:4]
                     if attempt == 5:
+                        prompts = page.locator(".jp-InputPrompt").all_inner_texts()[:4]
                         page.screenshot(path=str(tmp_path / "failed.png"))
                         raise AssertionError(f"JupyterLab did not run the notebook; dialogs seen: {seen}; "
                                              f"prompts: {prompts}") from None

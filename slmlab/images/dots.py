@@ -279,7 +279,8 @@ def _reduced(img: np.ndarray, scale: int | None = None) -> tuple[np.ndarray, int
 def _block_means(img: np.ndarray, r: int) -> np.ndarray:
     """The mean of each ``r`` × ``r`` block of an 8- or 16-bit image of whole blocks, as float32: the numbers
     ``cv2.resize``'s area average gives the image as float32 (block sums of whole grey levels, exact below 2²⁴, times
-    the float32 ``1/r²``), summed in integers without a float copy of the image (1 against 3 ms at 2048²)."""
+    the float32 ``1/r²``), summed in integers without a float copy of the image (1 against 3 ms at 2048²), by strided
+    adds of whole rows, then columns (a sum over the axes of the image reshaped into blocks took 18 ms)."""
     acc = np.uint16 if img.dtype == np.uint8 and r <= 16 else np.uint32
     rows = img[0::r].astype(acc)
     for k in range(1, r):
